@@ -1,0 +1,3 @@
+from vtkiosk.cli import main
+
+raise SystemExit(main())
