@@ -22,7 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("kiosk.serve_cli", "run the kiosk daemon"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
     "study": ("kiosk.study_cli", "run and analyse A/B haptic user studies"),
-    "demo": ("kiosk.demo_cli", "the main job: the kiosk on a demo bundle with the emulated device"),
+    "demo": ("vtkiosk.demo", "the main job: the kiosk on a demo bundle with the emulated device"),
 }
 
 
