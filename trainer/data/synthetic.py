@@ -37,6 +37,7 @@ SENSOR_MM = (32.0, 24.0)  # GelSight R1.5 sensing area, H x W
 SENSOR_NOISE = 0.01  # std of the sensor's slope noise (mm/mm) added to gx_raw, gy_raw
 PATCH = 32  # tactile patch side (px); patch centres keep PATCH // 2 px from the rectangle border
 CONTACT_PERCENTILE = 75.0
+CONTACT_DILATION_PX = 1  # 3x3 dilation of the contact mask (the paper's guard against false negatives)
 MIN_FRAME = 128
 SUBFOLDERS = ("trainS", "trainI", "trainM", "trainT", "valT", "testS", "testI", "testM", "testT")
 
@@ -167,35 +168,39 @@ def _pad(img: np.ndarray, p: int, ox: int, oy: int, fill: float | tuple) -> np.n
     return out
 
 
-def _touch_rects(mask: np.ndarray, rect_hw: tuple[int, int], n: int, rng: np.random.Generator
-                 ) -> list[tuple[int, int]]:
-    """Top-left (x, y) of sensor rectangles on a jittered grid: centre inside the mask, rectangle inside the frame.
+def _touches(mask: np.ndarray, height_mm: np.ndarray, rect_hw: tuple[int, int], n: int,
+             rng: np.random.Generator) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Sensor touches (x, y, contact mask, centre mask) on a jittered grid, like pressing a GelSight in rows.
 
-    The grid spacing starts at sqrt(mask area / n) and shrinks until at least n centres land on the garment; the
-    surplus is dropped at random, keeping grid order (the order a person would press the sensor).
+    A touch counts when its rectangle lies inside the frame, its centre on the garment and it leaves at least one
+    allowed patch centre. The grid spacing starts at sqrt(mask area / n) and shrinks until n touches count; the
+    surplus is dropped at random, keeping grid order. Fewer than n only when the garment cannot hold n.
     """
     h, w = mask.shape
     rh, rw = rect_hw
-    area = float(mask.sum())
-    spacing = max(np.sqrt(area / n), 2.0)
-    rects: list[tuple[int, int]] = []
+    spacing = max(np.sqrt(float(mask.sum()) / n), 2.0)
+    cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    found: list[tuple[int, int]] = []
     for _ in range(40):
         ys = np.arange(spacing / 2, h, spacing)
         xs = np.arange(spacing / 2, w, spacing)
         gy, gx = np.meshgrid(ys, xs, indexing="ij")
         jit = rng.uniform(-0.3, 0.3, (2,) + gy.shape) * spacing
-        cy, cx = (gy + jit[0]).ravel(), (gx + jit[1]).ravel()
-        x0 = np.clip(np.round(cx - rw / 2), 0, w - rw).astype(int)
-        y0 = np.clip(np.round(cy - rh / 2), 0, h - rh).astype(int)
+        x0 = np.clip(np.round(gx + jit[1] - rw / 2), 0, w - rw).astype(int).ravel()
+        y0 = np.clip(np.round(gy + jit[0] - rh / 2), 0, h - rh).astype(int).ravel()
         ok = mask[y0 + rh // 2, x0 + rw // 2]
-        rects = list(zip(x0[ok].tolist(), y0[ok].tolist()))
-        if len(rects) >= n:
+        found = []
+        for x, y in zip(x0[ok].tolist(), y0[ok].tolist()):
+            if (x, y) not in cache:
+                cache[(x, y)] = _contact(height_mm[y:y + rh, x:x + rw], CONTACT_DILATION_PX)
+            if cache[(x, y)][1].any():
+                found.append((x, y))
+        if len(found) >= n:
             break
         spacing *= 0.93
-    if len(rects) > n:
-        keep = np.sort(rng.choice(len(rects), n, replace=False))
-        rects = [rects[i] for i in keep]
-    return rects
+    if len(found) > n:
+        found = [found[i] for i in np.sort(rng.choice(len(found), n, replace=False))]
+    return [(x, y) + cache[(x, y)] for x, y in found]
 
 
 def _contact(height: np.ndarray, dilate_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -259,13 +264,7 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
         shutil.copyfile(tmp / f"train{key}" / f"{stem}_{names[key]}.png", tmp / f"test{key}" / f"{stem}_{names[key]}.png")
 
     rh, rw = sensor_rect_size((w, h))
-    rects = _touch_rects(ren.mask, (rh, rw), touch_target((w, h)), r_touch)
-    dil = 2 if w >= 640 else 1
-    touches = []
-    for x0, y0 in rects:
-        thresh, centre = _contact(ren.height_mm[y0:y0 + rh, x0:x0 + rw], dil)
-        if centre.any():
-            touches.append((x0, y0, thresh, centre))
+    touches = _touches(ren.mask, ren.height_mm, (rh, rw), touch_target((w, h)), r_touch)
     order = r_touch.permutation(len(touches))
     n_train, n_val = int(round(0.6 * len(touches))), int(round(0.2 * len(touches)))
     split = {}
@@ -296,7 +295,7 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
                     "thread": list(decor.thread_rgb)},
         "frame": [w, h], "padded_size": p, "offsets": [ox, oy], "pixel_pitch_mm": PITCH_MM,
         "sensor_rect_hw_px": [rh, rw], "sensor_noise_slope": SENSOR_NOISE, "patch": PATCH,
-        "contact_percentile": CONTACT_PERCENTILE, "contact_dilation_px": dil,
+        "contact_percentile": CONTACT_PERCENTILE, "contact_dilation_px": CONTACT_DILATION_PX,
         "touches": len(touches), "split": counts,
         "slope_percentiles_on_mask": {str(q): float(np.percentile(np.abs(ren.gx[ren.mask]), q)) for q in (50, 95, 99)},
     }
