@@ -230,7 +230,8 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
         r = 0.05 * garment_px
         for _ in range(decor.flowers):
             for _try in range(20):
-                cx, cy = drng.uniform(x0 + r, max(x1 - r, x0 + r + 1)), drng.uniform(split + r, max(y1 - r, split + r + 1))
+                cx = drng.uniform(x0 + r, max(x1 - r, x0 + r + 1))
+                cy = drng.uniform(split + r, max(y1 - r, split + r + 1))
                 rr = r * drng.uniform(0.7, 1.1)
                 if all(np.hypot(cx - a, cy - b) > rr + c for a, b, c, _ in centres) \
                         and mask[int(np.clip(cy, 0, h - 1)), int(np.clip(cx, 0, w - 1))]:

@@ -261,7 +261,8 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
     names = {"S": "sketch", "I": "image", "M": "mask"}
     for key, img in images.items():
         _write_png(tmp / f"train{key}" / f"{stem}_{names[key]}.png", img)
-        shutil.copyfile(tmp / f"train{key}" / f"{stem}_{names[key]}.png", tmp / f"test{key}" / f"{stem}_{names[key]}.png")
+        fname = f"{stem}_{names[key]}.png"
+        shutil.copyfile(tmp / f"train{key}" / fname, tmp / f"test{key}" / fname)
 
     rh, rw = sensor_rect_size((w, h))
     touches = _touches(ren.mask, ren.height_mm, (rh, rw), touch_target((w, h)), r_touch)
