@@ -96,10 +96,11 @@ def changed_tiles(grid: Grid, new: np.ndarray, old: np.ndarray | None) -> list[t
 
 
 def encode_tile(raw: bytes, compression: str = "zlib", level: int = 1) -> tuple[int, bytes]:
-    """Tile bytes -> (codec, data), the smallest of FILL / ZLIB / RAW allowed by `compression` ("none"|"zlib")."""
-    if raw and raw.count(raw[0]) == len(raw):
-        return Codec.FILL, raw[:1]
+    """Tile bytes -> (codec, data). compression "none": RAW always (the uncompressed baseline); "zlib": the
+    smallest of FILL (constant tile, 1 byte), ZLIB at `level`, RAW."""
     if compression == "zlib":
+        if raw and raw.count(raw[0]) == len(raw):
+            return Codec.FILL, raw[:1]
         packed = zlib.compress(raw, level)
         if len(packed) < len(raw):
             return Codec.ZLIB, packed
