@@ -248,3 +248,25 @@ def sketch_from_image(rgb: object, mask: object, *, blur_sigma: float | None = N
     if LINE_PX > 1:
         thin = cv2.dilate(thin.astype(np.uint8), np.ones((LINE_PX, LINE_PX), np.uint8)) > 0
     return np.where(thin, INK, PAPER).astype(np.uint8)
+
+
+def letterbox(sketch: object, size: tuple[int, int]) -> tuple[np.ndarray, tuple[float, int, int]]:
+    """Fit a sketch into `size` = (width, height) keeping its aspect ratio, centred on paper.
+
+    Lines are resampled by area and re-binarised, so they stay ink/paper and do not thin out to grey.
+    Returns the fitted sketch and (scale, x offset, y offset): source pixel (x, y) lands at
+    (x * scale + x offset, y * scale + y offset).
+
+    Shape: (H, W) uint8 -> (height, width) uint8.
+    """
+    s = _check_sketch(sketch)
+    w, h = _check_size(size)
+    scale = min(w / s.shape[1], h / s.shape[0])
+    nw, nh = max(1, round(s.shape[1] * scale)), max(1, round(s.shape[0] * scale))
+    interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST
+    small = cv2.resize(s, (nw, nh), interpolation=interp)
+    small = np.where(small < 224, INK, PAPER).astype(np.uint8)  # a partly covered pixel keeps its line
+    out = np.full((h, w), PAPER, np.uint8)
+    ox, oy = (w - nw) // 2, (h - nh) // 2
+    out[oy:oy + nh, ox:ox + nw] = small
+    return out, (scale, ox, oy)
