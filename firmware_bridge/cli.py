@@ -99,7 +99,9 @@ def cmd_emulate(args) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: (stop.set(), server.stop()))
     if args.duration > 0:
-        threading.Timer(args.duration, server.stop).start()
+        timer = threading.Timer(args.duration, server.stop)
+        timer.daemon = True
+        timer.start()
     print(f"emulated bridge listening on {args.socket} ({w}x{h} panel, {args.tile}x{args.tile} tiles, "
           f"{args.report_size} B reports, serial {args.serial}); Ctrl-C to stop", flush=True)
     server.serve_forever()
