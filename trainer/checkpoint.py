@@ -1,0 +1,71 @@
+"""Checkpoints the exporter can load without the trainer's training state.
+
+`RUN/checkpoints/{latest,best}.pt` = {"generator": state_dict, "generator_class": "TwoBranchUNet" |
+"ResnetGenerator", "model_config": {...}, "method": name, "step": n, "friction_scale": float, "info": {...
+perceptual backbone / substitutes used ...}, "config": the run config as a dict, "train_state": optimizers,
+discriminators, history (for resume only)}. Written atomically (temp file + rename). A missing or unreadable
+checkpoint is an error the operator sees - never silently random weights (the published code's defect).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from kiosk.errors import KioskError
+
+
+class CheckpointError(KioskError):
+    """A run without a usable checkpoint; the message names the file."""
+
+
+def generator_classes() -> dict[str, type]:
+    from trainer.models.generator import TwoBranchUNet
+    from trainer.models.pix2pix_generator import ResnetGenerator
+    return {"TwoBranchUNet": TwoBranchUNet, "ResnetGenerator": ResnetGenerator}
+
+
+def save_checkpoint(path: Path, payload: dict) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+
+
+def read_checkpoint(run_dir: Path, which: str = "best") -> dict:
+    if which not in ("best", "latest"):
+        raise CheckpointError(f"which must be 'best' or 'latest'; got {which!r}")
+    path = Path(run_dir) / "checkpoints" / f"{which}.pt"
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no checkpoint (train the run first, or pick --which latest)")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is the same operator-facing problem
+        raise CheckpointError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(ck, dict) or "generator" not in ck or "model_config" not in ck:
+        raise CheckpointError(f"{path}: not a vtkiosk checkpoint (no generator / model_config)")
+    return ck
+
+
+def load_generator(run_dir: Path, which: str = "best", *, outputs: str = "both") -> tuple[nn.Module, dict]:
+    """The trained generator in eval mode, and info: method, step, model_config, generator_class, friction_scale,
+    info (perceptual backbone etc.), path. Raises CheckpointError on anything missing or mismatched."""
+    ck = read_checkpoint(run_dir, which)
+    classes = generator_classes()
+    name = ck.get("generator_class", "TwoBranchUNet")
+    if name not in classes:
+        raise CheckpointError(f"{run_dir}: unknown generator class {name!r}")
+    try:
+        net = classes[name].from_config(ck["model_config"], outputs=outputs)
+        state = {k.removeprefix("module."): v for k, v in ck["generator"].items()}
+        net.load_state_dict(state, strict=True)
+    except (RuntimeError, TypeError, KeyError) as exc:
+        raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
+    net.eval()
+    info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
+                                   "garment", "crop")}
+    info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")
+    return net, info

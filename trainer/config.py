@@ -1,0 +1,203 @@
+"""Typed run configuration: dataclasses filled from a YAML preset (+ `--set section.key=value` overrides),
+validated (unknown keys are errors), printed and saved as `RUN/config.yaml` with every run.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+from kiosk.errors import KioskError
+
+PRESETS_DIR = Path(__file__).parent / "presets"
+
+
+class ConfigError(KioskError):
+    """A preset or override that does not fit the typed config; the message names the key."""
+
+
+@dataclass
+class DataConfig:
+    crop: int = 1536              # training/eval crop side in padded-frame px (multiple of 256)
+    fit_crop: bool = True         # grow the crop (multiples of 256) when the object does not fit in `crop`
+    patches: int = 64             # paired tactile patches per step
+    unpaired: int = 32            # unpaired fake patches per step (inside the object mask)
+    candidates_per_touch: int = 4  # random centres drawn per touch before the Laplacian-weighted pick
+    laplacian_floor: float = 0.1  # weight = var(Laplacian(sketch patch)) + floor * mean (flat areas still drawn)
+
+
+@dataclass
+class ModelConfig:
+    base: int = 10
+    pe_dim: int = 4
+    outer_skip: bool = False
+    d_ndf: int = 8
+    d_layers: int = 3
+    d_scales: int = 3
+    td_scales: int = 3
+    d_norm: str = "batch"
+    resnet_ngf: int = 64          # pix2pix baseline
+    resnet_blocks: int = 9
+
+
+@dataclass
+class LossConfig:
+    visual_l1: float = 100.0
+    visual_perceptual: float = 1.0
+    visual_gan: float = 1.0
+    clip: float = 1.0
+    feature_matching: float = 1.0
+    tactile_gan: float = 5.0
+    tactile_l1: float = 10.0
+    tactile_perceptual: float = 10.0
+    clip_start: float = 0.247     # fraction of the schedule before the CLIP-D starts (epoch 100 of 405)
+
+
+@dataclass
+class OptimConfig:
+    lr: float = 1e-3
+    betas: tuple[float, float] = (0.0, 0.99)
+    lr_tactile_d: float = 5e-4
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 81000            # 405 epochs x 200 iterations
+    seed: int = 0
+    threads: int = 2
+    deterministic: bool = False
+    log_every: int = 10
+    val_every: int = 500
+    sample_every: int = 2000
+    ckpt_every: int = 2000
+    progress: bool = True
+
+
+@dataclass
+class PretrainedConfig:
+    vgg16: str | None = None         # torchvision vgg16 state_dict (.pth)
+    lpips_lin: str | None = None     # lpips v0.1 vgg linear layers (.pth)
+    clip_encoder: str | None = None  # TorchScript image encoder: (N,3,224,224) in [-1,1] -> (N,D)
+    inception: str | None = None     # torchvision inception_v3 state_dict (.pth), for SIFID
+
+
+@dataclass
+class RunConfig:
+    method: str = "ours"
+    preset: str = "paper"
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    pretrained: PretrainedConfig = field(default_factory=PretrainedConfig)
+    garment: str = ""                # garment folder (absolute path), filled by the CLI
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["optim"]["betas"] = list(d["optim"]["betas"])
+        return d
+
+    def dump(self, path: Path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+
+def _coerce(value, typ, key: str):
+    typ_s = str(typ)
+    if value is None:
+        if "None" in typ_s:
+            return None
+        raise ConfigError(f"{key}: must not be empty")
+    try:
+        if typ in (int, "int"):
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ValueError
+            return int(value)
+        if typ in (float, "float"):
+            return float(value)
+        if typ in (bool, "bool"):
+            if isinstance(value, str):
+                if value.lower() in ("true", "1", "yes"):
+                    return True
+                if value.lower() in ("false", "0", "no"):
+                    return False
+                raise ValueError
+            return bool(value)
+        if "tuple" in typ_s:
+            vals = [float(v) for v in (value.split(",") if isinstance(value, str) else value)]
+            if len(vals) != 2:
+                raise ValueError
+            return tuple(vals)
+        return str(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{key}: cannot read {value!r} as {typ_s}") from exc
+
+
+def _fill(obj, data: dict, prefix: str = "") -> None:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{prefix or 'config'}: expected a mapping; got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(obj)}
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in fields:
+            raise ConfigError(f"unknown config key {name!r}; known: {', '.join(fields)}")
+        cur = getattr(obj, key)
+        if dataclasses.is_dataclass(cur):
+            _fill(cur, value, f"{name}.")
+        else:
+            setattr(obj, key, _coerce(value, fields[key].type, name))
+
+
+def load_config(preset: str | Path = "paper", *, overrides: list[str] | None = None,
+                method: str | None = None) -> RunConfig:
+    """A preset name (`paper`, `cpu`, `tiny`) or a YAML path, then `section.key=value` overrides."""
+    path = Path(preset)
+    if not path.suffix:
+        path = PRESETS_DIR / f"{preset}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")))
+        raise ConfigError(f"no preset {preset!r} (known: {known}, or a path to a .yaml file)")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    cfg = RunConfig()
+    _fill(cfg, data)
+    if "preset" not in data:
+        cfg.preset = path.stem
+    for item in overrides or []:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r} must be section.key=value")
+        key, value = item.split("=", 1)
+        parts = key.strip().split(".")
+        nested: dict = {}
+        cur = nested
+        for p in parts[:-1]:
+            cur = cur.setdefault(p, {})
+        cur[parts[-1]] = yaml.safe_load(value) if value.strip() else None
+        _fill(cfg, nested)
+    if method is not None:
+        cfg.method = method
+    validate(cfg)
+    return cfg
+
+
+def config_from_dict(data: dict) -> RunConfig:
+    cfg = RunConfig()
+    _fill(cfg, data)
+    return cfg
+
+
+def validate(cfg: RunConfig) -> None:
+    if cfg.data.crop % 256:
+        raise ConfigError(f"data.crop must be a multiple of 256 (the generator has 8 stride-2 levels); "
+                          f"got {cfg.data.crop}")
+    if cfg.data.patches < 1:
+        raise ConfigError("data.patches must be >= 1")
+    if cfg.train.steps < 1:
+        raise ConfigError("train.steps must be >= 1")
+    for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
+        if getattr(cfg.train, k) < 1:
+            raise ConfigError(f"train.{k} must be >= 1")

@@ -1,0 +1,184 @@
+"""The training loop object (SPADE-style): data, method, validation, checkpoints, pictures, resume.
+
+Determinism: torch is seeded once (network initialisation); every step's data is drawn from a generator seeded by
+(seed, step, rank), and nothing else in a step is random, so a resumed run continues exactly as an uninterrupted
+one (tests/trainer/test_loop.py checks this bit for bit under `torch.use_deterministic_algorithms`).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
+from trainer.config import RunConfig
+from trainer.distributed import Dist, average_scalar
+from trainer.methods import get_method
+from trainer.metrics import l1, psnr, tactile_patch_metrics
+from trainer.sampling import GarmentData, cut
+from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_uint8, friction_tile
+
+log = logging.getLogger("trainer")
+
+
+def set_determinism(cfg: RunConfig) -> None:
+    torch.set_num_threads(cfg.train.threads)
+    torch.manual_seed(cfg.train.seed)
+    np.random.seed(cfg.train.seed)
+    if cfg.train.deterministic:
+        torch.use_deterministic_algorithms(True)
+
+
+class Trainer:
+    """Train one garment with one method into `out_dir` (the run directory)."""
+
+    def __init__(self, cfg: RunConfig, garment_dir: Path, out_dir: Path, *, resume: bool = False,
+                 dist: Dist | None = None):
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.dist = dist
+        self.rank = dist.rank if dist else 0
+        self.main = self.rank == 0
+        cfg.garment = str(Path(garment_dir).resolve())
+        set_determinism(cfg)
+        self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
+        self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
+        self.val = self.data.eval_set("val")
+        self.step = 0
+        self.history: list[dict] = []
+        self.val_history: list[dict] = []
+        self.best: float | None = None
+        self.train_seconds = 0.0
+        if resume:
+            self._resume()
+        elif self.main and (self.out / "checkpoints" / "latest.pt").exists():
+            raise CheckpointError(f"{self.out} already holds a run; pass --resume to continue it or pick a new --out")
+        if self.main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            cfg.dump(self.out / "config.yaml")
+
+    # --- state ----------------------------------------------------------------------------------------------
+    def _payload(self) -> dict:
+        m = self.method
+        return {"generator": m.generator.state_dict(), "generator_class": m.generator_class,
+                "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
+                "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
+                "crop": self.data.side, "config": self.cfg.to_dict(),
+                "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
+                                "best": self.best, "train_seconds": self.train_seconds,
+                                "torch_rng": torch.get_rng_state()}}
+
+    def _resume(self) -> None:
+        ck = read_checkpoint(self.out, "latest")
+        if ck.get("method") != self.cfg.method:
+            raise CheckpointError(f"{self.out}: holds method {ck.get('method')!r}, not {self.cfg.method!r}")
+        ts = ck["train_state"]
+        self.method.load_state_dict(ts["method"])
+        self.history, self.val_history = ts["history"], ts["val"]
+        self.best, self.train_seconds = ts["best"], ts.get("train_seconds", 0.0)
+        torch.set_rng_state(ts["torch_rng"])
+        self.step = int(ck["step"])
+        log.info("resumed %s at step %d", self.out, self.step)
+
+    def save(self, which: str = "latest") -> None:
+        if self.main:
+            save_checkpoint(self.out / "checkpoints" / f"{which}.pt", self._payload())
+
+    # --- validation and pictures ----------------------------------------------------------------------------
+    @torch.no_grad()
+    def predict(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
+        g = self.method.generator
+        was = g.training
+        g.eval()
+        out = g(batch.sketch, batch.mask)
+        g.train(was)
+        return out
+
+    def validate(self) -> dict:
+        v = self.val
+        vis, tac = self.predict(v)
+        out = {"step": self.step, "val_visual_l1": l1(vis, v.visual), "val_visual_psnr": psnr(vis, v.visual)}
+        if len(v.origins):
+            tm = tactile_patch_metrics(cut(tac, v.origins), v.gx, v.gy, v.contact)
+            out.update({f"val_{k}": x for k, x in tm.items()})
+        return out
+
+    def sample_sheet(self, path: Path) -> None:
+        v = self.val
+        vis, tac = self.predict(v)
+        gx, gy = tac[0, 0].numpy(), tac[0, 1].numpy()
+        tiles = [label(to_uint8(v.sketch[0, 0].numpy()), "sketch"),
+                 label(to_uint8(v.visual[0].permute(1, 2, 0).numpy()), "real visual"),
+                 label(to_uint8(vis[0].permute(1, 2, 0).numpy()), f"step {self.step}: visual"),
+                 label(normal_tile(gx, gy), "normal map"),
+                 label(friction_tile(gx, gy, self.data.friction_scale), "friction map")]
+        ft = self.data.g.full_tactile
+        if ft is not None:
+            x, y = v.origin
+            s = self.data.side
+            tiles.append(label(normal_tile(ft.gx[y:y + s, x:x + s], ft.gy[y:y + s, x:x + s]), "true normal"))
+        save_png(path, grid([tiles]))
+
+    # --- the loop -------------------------------------------------------------------------------------------
+    def run(self, until: int | None = None) -> dict:
+        t = self.cfg.train
+        end = min(until if until is not None else t.steps, t.steps)
+        bar = None
+        if self.main and t.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}",
+                       dynamic_ncols=True)
+        self.method.train()
+        t0 = time.perf_counter()
+        first = self.step
+        while self.step < end:
+            batch = self.data.batch(self.step, self.rank)
+            logs = self.method.step(batch, self.step)
+            self.step += 1
+            if self.step % t.log_every == 0 or self.step == end:
+                if self.dist is not None:
+                    logs = {k: average_scalar(x, self.dist.world) for k, x in logs.items()}
+                self.history.append({"step": self.step, **logs})
+                if bar is not None:
+                    bar.set_postfix({k: f"{x:.3g}" for k, x in logs.items() if k in
+                                     ("g_total", "v_l1", "t_l1", "t_gan", "d_visual", "d_tactile", "l1", "d")})
+            if bar is not None:
+                bar.update(1)
+            if self.step % t.val_every == 0 or self.step == end:
+                self._validate_and_keep_best()
+            if self.main and (self.step % t.sample_every == 0 or self.step == end):
+                self.sample_sheet(self.out / "samples" / f"step_{self.step:05d}.png")
+            if self.step % t.ckpt_every == 0 or self.step == end:
+                self.train_seconds += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                self.save("latest")
+                if self.main:
+                    curves_png(self.out / "curves.png", self.history, self.val_history)
+        if bar is not None:
+            bar.close()
+        self.train_seconds += time.perf_counter() - t0
+        done = self.step - first
+        summary = {"method": self.cfg.method, "garment": self.data.g.name, "step": self.step,
+                   "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
+                   "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
+                   "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),
+                   "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best}
+        if self.main:
+            (self.out / "metrics.json").write_text(json.dumps({"train": summary}, indent=2))
+        return summary
+
+    def _validate_and_keep_best(self) -> None:
+        if not self.main:
+            return
+        v = self.validate()
+        self.val_history.append(v)
+        # Best = lowest validation tactile angular error (the headline metric) plus visual L1 in degrees-ish
+        # units (x10), so a run that stops learning the image is not kept for its tactile alone.
+        score = v.get("val_tactile_angle_deg", 0.0) + 10.0 * v["val_visual_l1"]
+        if self.best is None or score < self.best:
+            self.best = score
+            save_checkpoint(self.out / "checkpoints" / "best.pt", self._payload())

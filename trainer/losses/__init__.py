@@ -1,0 +1,1 @@
+"""Losses: non-saturating GAN, feature matching, perceptual (LPIPS-VGG or a documented substitute), CLIP-D."""

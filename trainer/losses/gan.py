@@ -1,0 +1,29 @@
+"""Non-saturating GAN loss on multi-scale discriminator outputs (lists of feature lists; last entry = logits)."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+
+def _logits(outputs) -> list[torch.Tensor]:
+    if isinstance(outputs, torch.Tensor):
+        return [outputs]
+    return [o[-1] if isinstance(o, (list, tuple)) else o for o in outputs]
+
+
+def d_loss(real_out, fake_out) -> torch.Tensor:
+    """softplus(-D(real)) + softplus(D(fake)), averaged over scales: the discriminator's side."""
+    real, fake = _logits(real_out), _logits(fake_out)
+    return sum(F.softplus(-r).mean() + F.softplus(f).mean() for r, f in zip(real, fake)) / len(real)
+
+
+def d_loss_fake(fake_out) -> torch.Tensor:
+    """The fake term alone (unpaired fake patches have no real counterpart)."""
+    fake = _logits(fake_out)
+    return sum(F.softplus(f).mean() for f in fake) / len(fake)
+
+
+def g_loss(fake_out) -> torch.Tensor:
+    """softplus(-D(G(x))): the generator's non-saturating loss."""
+    fake = _logits(fake_out)
+    return sum(F.softplus(-f).mean() for f in fake) / len(fake)

@@ -1,0 +1,152 @@
+"""Ours (Gao, Yuan, Zhu, ICCV 2023): two-branch U-Net; visual D on (sketch, image) + CLIP-D; tactile patch D on
+(gx, gy, sketch patch, visual patch, contact) with paired real, paired fake and unpaired fake patches.
+
+Fixes of the published code's defects: the tactile GAN term trains the generator's tactile branch (the fake visual
+patch is detached, so no gradient reaches the visual branch from it, as the paper says); feature matching is in
+the generator loss; the CLIP head has its own optimizer. Ablations switch the four flags off.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from trainer.config import RunConfig
+from trainer.distributed import Dist
+from trainer.losses.clip_d import ClipD
+from trainer.losses.feature_matching import feature_matching
+from trainer.losses.gan import d_loss, d_loss_fake, g_loss
+from trainer.losses.perceptual import Perceptual, per_channel
+from trainer.methods.base import Method
+from trainer.models.discriminators import MultiScaleD
+from trainer.models.generator import TwoBranchUNet
+from trainer.sampling import PATCH, Batch, cut
+
+
+def masked_l1(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """Mean |a - b| over the pixels where m = 1 (all channels)."""
+    return ((a - b).abs() * m).sum() / (m.sum() * a.shape[1]).clamp_min(1.0)
+
+
+class Ours(Method):
+    name = "ours"
+    generator_class = "TwoBranchUNet"
+    visual_gan = True
+    tactile_gan = True
+    visual_rec = True
+    tactile_rec = True
+
+    def __init__(self, cfg: RunConfig, *, side: int, dist: Dist | None = None, device: str = "cpu"):
+        super().__init__(cfg, side=side, dist=dist, device=device)
+        m, o, lc = cfg.model, cfg.optim, cfg.loss
+        self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip).to(self.device)
+        self.G = self._wrap_generator()
+        betas = tuple(o.betas)
+        self.opts["G"] = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=betas)
+        if self.visual_gan:
+            self.nets["DI"] = MultiScaleD(in_ch=4, ndf=m.d_ndf, n_layers=m.d_layers, num_D=m.d_scales,
+                                          norm=m.d_norm, min_input=side).to(self.device)
+            self.opts["DI"] = torch.optim.Adam(self.nets["DI"].parameters(), lr=o.lr, betas=betas)
+        if self.tactile_gan:
+            self.nets["DT"] = MultiScaleD(in_ch=7, ndf=m.d_ndf, n_layers=m.d_layers, num_D=m.td_scales,
+                                          norm=m.d_norm, min_input=PATCH).to(self.device)
+            self.opts["DT"] = torch.optim.Adam(self.nets["DT"].parameters(), lr=o.lr_tactile_d, betas=betas)
+        pre = cfg.pretrained
+        self.perceptual = Perceptual(vgg16_path=pre.vgg16, lpips_lin_path=pre.lpips_lin).to(self.device)
+        self.clip = ClipD(encoder_path=pre.clip_encoder if (self.visual_gan and lc.clip > 0) else None,
+                          lr=o.lr, betas=betas, device=self.device)
+        if self.clip.active:
+            self.nets["CLIP"] = self.clip.net.head
+            self.opts["CLIP"] = self.clip.opt
+        self._sync_nets()
+        self.info = {"perceptual": self.perceptual.kind, "clip_d": "torchscript" if self.clip.active else "skipped",
+                     "losses": {"visual_gan": self.visual_gan, "tactile_gan": self.tactile_gan,
+                                "visual_rec": self.visual_rec, "tactile_rec": self.tactile_rec}}
+
+    # --- inputs of the discriminators ------------------------------------------------------------------------
+    def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor):
+        """(real paired, fake paired, fake unpaired) 7-channel patches. The fake visual patch is detached."""
+        c = batch.contact
+        sk = cut(batch.sketch, batch.origins)
+        real = torch.cat([batch.gx * c, batch.gy * c, sk, cut(batch.visual, batch.origins), c], 1)
+        fake = torch.cat([cut(tactile_fake, batch.origins) * c, sk, cut(visual_fake.detach(), batch.origins), c], 1)
+        um = cut(batch.mask, batch.unpaired)
+        unpaired = torch.cat([cut(tactile_fake, batch.unpaired) * um, cut(batch.sketch, batch.unpaired),
+                              cut(visual_fake.detach(), batch.unpaired), um], 1)
+        return real, fake, unpaired
+
+    def generator_losses(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
+                         step: int = 0) -> dict[str, torch.Tensor]:
+        """Each weighted term of the generator loss, separately (tests backpropagate them one by one)."""
+        lc = self.cfg.loss
+        out: dict[str, torch.Tensor] = {}
+        if self.visual_rec:
+            out["v_l1"] = lc.visual_l1 * F.l1_loss(visual_fake, batch.visual)
+            if lc.visual_perceptual:
+                out["v_perc"] = lc.visual_perceptual * self.perceptual(visual_fake, batch.visual)
+        if self.visual_gan:
+            DI = self.nets["DI"]
+            real_o = DI(torch.cat([batch.sketch, batch.visual], 1))
+            fake_o = DI(torch.cat([batch.sketch, visual_fake], 1))
+            out["v_gan"] = lc.visual_gan * g_loss(fake_o)
+            if lc.feature_matching:
+                out["v_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
+            if self.clip.active and step >= lc.clip_start * self.cfg.train.steps and lc.clip:
+                out["v_clip"] = lc.clip * self.clip.g_loss(visual_fake)
+        tp = cut(tactile_fake, batch.origins)
+        gt = torch.cat([batch.gx, batch.gy], 1)
+        if self.tactile_rec:
+            out["t_l1"] = lc.tactile_l1 * masked_l1(tp, gt, batch.contact)
+            if lc.tactile_perceptual:
+                out["t_perc"] = lc.tactile_perceptual * per_channel(self.perceptual, tp * batch.contact,
+                                                                     gt * batch.contact)
+        if self.tactile_gan:
+            DT = self.nets["DT"]
+            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake)
+            real_o, fake_o = DT(real), DT(fake)
+            gan = g_loss(fake_o)
+            if len(unpaired):
+                gan = (gan + g_loss(DT(unpaired))) / 2
+            out["t_gan"] = lc.tactile_gan * gan
+            if lc.feature_matching:
+                out["t_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
+        return out
+
+    def step(self, batch: Batch, step: int) -> dict[str, float]:
+        logs: dict[str, float] = {}
+        visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
+        # Discriminators first, on detached fakes.
+        if self.visual_gan:
+            DI = self.nets["DI"]
+            self.opts["DI"].zero_grad(set_to_none=True)
+            loss = d_loss(DI(torch.cat([batch.sketch, batch.visual], 1)),
+                          DI(torch.cat([batch.sketch, visual_fake.detach()], 1)))
+            loss.backward()
+            self._reduce(DI)
+            self.opts["DI"].step()
+            logs["d_visual"] = loss.item()
+            if self.clip.active and step >= self.cfg.loss.clip_start * self.cfg.train.steps:
+                logs["d_clip"] = self.clip.d_step(batch.visual, visual_fake, reduce=self._reduce)
+        if self.tactile_gan:
+            DT = self.nets["DT"]
+            self.opts["DT"].zero_grad(set_to_none=True)
+            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake.detach())
+            loss = d_loss(DT(real), DT(fake))
+            if len(unpaired):
+                loss = loss + d_loss_fake(DT(unpaired))
+            loss.backward()
+            self._reduce(DT)
+            self.opts["DT"].step()
+            logs["d_tactile"] = loss.item()
+        # Generator.
+        for net in self.nets.values():
+            self._requires_grad(net, False)
+        self.opts["G"].zero_grad(set_to_none=True)
+        terms = self.generator_losses(batch, visual_fake, tactile_fake, step)
+        total = sum(terms.values())
+        total.backward()
+        self.opts["G"].step()
+        for net in self.nets.values():
+            self._requires_grad(net, True)
+        logs.update({k: v.item() for k, v in terms.items()})
+        logs["g_total"] = total.item()
+        return logs

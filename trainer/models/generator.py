@@ -1,0 +1,162 @@
+"""The two-branch U-Net generator of the paper (published variant): one encoder, a shared decoder trunk, then a
+visual head (RGB) and a tactile head (gx, gy) that take the same skips.
+
+Channel plan (base 10): 9 -> 10 -> 20 -> 40 -> 80 -> 80 -> 80 -> 80 -> 80, eight 4x4 stride-2 convolutions.
+Down: LeakyReLU(0.2) -> conv -> InstanceNorm (affine off); the outermost down has no activation/norm and the
+innermost no norm (pix2pix convention) - which is also what keeps a 256 px input valid: the 8th down reaches 1x1,
+where an InstanceNorm would zero everything, and it has none. Up: ReLU -> transposed conv -> InstanceNorm.
+Decoder up7..up4 are shared; up3..up0 exist once per branch. Every up layer except the innermost (up7) and the
+outermost (up0) takes the encoder skip of its level, concatenated (reference-notes: the outermost takes no skip).
+Outputs: tanh, multiplied by the mask. About 1.47 M parameters.
+
+Input: the masked sketch (N, 1, H, W) in [-1, 1] and the mask (N, 1, H, W) in {0, 1}, exactly the two tensors of
+`kiosk.sketch.network_input`; the positional encoding is computed inside, so exported graphs take only these.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from trainer.models.posenc import positional_encoding
+
+MULTIPLE = 256  # 8 stride-2 levels
+
+
+@dataclass
+class GeneratorConfig:
+    """What `TwoBranchUNet` needs to be rebuilt from a checkpoint (stored as `model_config`)."""
+
+    base: int = 10
+    pe_dim: int = 4
+    out_visual: int = 3
+    out_tactile: int = 2
+    max_mult: int = 8
+    outer_skip: bool = False
+
+
+def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = False) -> nn.Sequential:
+    conv = nn.Conv2d(cin, cout, 4, 2, 1)
+    if outermost:
+        return nn.Sequential(conv)
+    layers: list[nn.Module] = [nn.LeakyReLU(0.2), conv]
+    if not innermost:
+        layers.append(nn.InstanceNorm2d(cout, affine=False))
+    return nn.Sequential(*layers)
+
+
+def _up(cin: int, cout: int, *, outermost: bool = False) -> nn.Sequential:
+    conv = nn.ConvTranspose2d(cin, cout, 4, 2, 1)
+    if outermost:
+        return nn.Sequential(nn.ReLU(), conv, nn.Tanh())
+    return nn.Sequential(nn.ReLU(), conv, nn.InstanceNorm2d(cout, affine=False))
+
+
+class Branch(nn.Module):
+    """up3..up0 of one modality: skips from levels 3..1, no skip into the outermost layer (unless outer_skip)."""
+
+    def __init__(self, *, widths: list[int], out: int, outer_skip: bool):
+        super().__init__()
+        # widths[i] = channels of encoder level i output (down_i), i = 0..7
+        self.outer_skip = outer_skip
+        self.up3 = _up(2 * widths[4], widths[2])
+        self.up2 = _up(2 * widths[2], widths[1])
+        self.up1 = _up(2 * widths[1], widths[0])
+        self.up0 = _up((2 if outer_skip else 1) * widths[0], out, outermost=True)
+
+    def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
+        y = self.up3(torch.cat([skips[3], trunk], 1))
+        y = self.up2(torch.cat([skips[2], y], 1))
+        y = self.up1(torch.cat([skips[1], y], 1))
+        return self.up0(torch.cat([skips[0], y], 1) if self.outer_skip else y)
+
+
+class TwoBranchUNet(nn.Module):
+    """Sketch (+ mask) -> (visual RGB, tactile gx gy), both tanh x mask.
+
+    `outputs` picks what `forward` returns and computes: "both" -> (visual, tactile); "visual" or "tactile" -> that
+    single tensor, skipping the other branch (for exporting separate graphs). The state_dict is the same for all.
+
+    Shape: sketch, mask (N, 1, H, W), H and W multiples of 256 -> visual (N, 3, H, W), tactile (N, 2, H, W).
+    """
+
+    def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
+                 max_mult: int = 8, outer_skip: bool = False, outputs: str = "both"):
+        super().__init__()
+        assert outputs in ("both", "visual", "tactile"), f"outputs must be both|visual|tactile; got {outputs!r}"
+        self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip)
+        self.outputs = outputs
+        self.pe_dim = pe_dim
+        w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
+        cin = 1 + 2 * pe_dim
+        self.downs = nn.ModuleList([_down(cin, w[0], outermost=True)] +
+                                   [_down(w[i - 1], w[i], innermost=(i == 7)) for i in range(1, 8)])
+        self.up7 = _up(w[7], w[6])
+        self.up6 = _up(2 * w[6], w[5])
+        self.up5 = _up(2 * w[5], w[4])
+        self.up4 = _up(2 * w[4], w[3])
+        self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip)
+        self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip)
+
+    @classmethod
+    def from_config(cls, cfg: dict | GeneratorConfig, *, outputs: str = "both") -> "TwoBranchUNet":
+        d = asdict(cfg) if isinstance(cfg, GeneratorConfig) else dict(cfg)
+        return cls(**d, outputs=outputs)
+
+    def model_config(self) -> dict:
+        return asdict(self.config)
+
+    def _check(self, sketch: torch.Tensor, mask: torch.Tensor) -> None:
+        assert sketch.dim() == 4 and sketch.shape[1] == 1, \
+            f"sketch must be (N, 1, H, W); got {tuple(sketch.shape)}"
+        assert mask.shape == sketch.shape, f"mask must match sketch {tuple(sketch.shape)}; got {tuple(mask.shape)}"
+        if not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export():
+            h, w = sketch.shape[-2:]
+            assert h % MULTIPLE == 0 and w % MULTIPLE == 0, \
+                f"input H and W must be multiples of {MULTIPLE} (8 stride-2 levels); got {h}x{w}"
+
+    def encode(self, sketch: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Shared part: masked (sketch, PE) -> encoder skips and the trunk after up4."""
+        self._check(sketch, mask)
+        x = torch.cat([sketch, positional_encoding(sketch, self.pe_dim)], 1) * mask
+        skips = []
+        for down in self.downs:
+            x = down(x)
+            skips.append(x)
+        y = self.up7(skips[7])
+        y = self.up6(torch.cat([skips[6], y], 1))
+        y = self.up5(torch.cat([skips[5], y], 1))
+        y = self.up4(torch.cat([skips[4], y], 1))
+        return y, skips
+
+    def forward_visual(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        trunk, skips = self.encode(sketch, mask)
+        return self.visual(trunk, skips) * mask
+
+    def forward_tactile(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        trunk, skips = self.encode(sketch, mask)
+        return self.tactile(trunk, skips) * mask
+
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor):
+        if self.outputs == "visual":
+            return self.forward_visual(sketch, mask)
+        if self.outputs == "tactile":
+            return self.forward_tactile(sketch, mask)
+        trunk, skips = self.encode(sketch, mask)
+        return self.visual(trunk, skips) * mask, self.tactile(trunk, skips) * mask
+
+
+class SingleOutput(nn.Module):
+    """A thin wrapper whose forward returns one modality and computes only its branch (one exported graph each)."""
+
+    def __init__(self, generator: nn.Module, *, output: str):
+        super().__init__()
+        assert output in ("visual", "tactile"), f"output must be visual|tactile; got {output!r}"
+        self.generator = generator
+        self.output = output
+
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        if self.output == "visual":
+            return self.generator.forward_visual(sketch, mask)
+        return self.generator.forward_tactile(sketch, mask)
