@@ -97,16 +97,13 @@ def _run_link(link: str, report_size: int, pad: bool, mode: str, delta: bool, co
     cfg = BridgeConfig(type="emulated", report_size=report_size, background=False, delta=delta,
                        compression=compression, ack_timeout_s=1.0 if link == "fs-hid" else 0.05)
     tr = EmulatedTransport(cfg, emulator=emu)
-    tr.pad = pad
+    tr.pad = pad  # bulk packets are not padded: the same transport code, the usb transport's framing
     disp = HapticDisplay(cfg, transport=tr)
     disp.open()
-    raw_full = None
     rows = []
     for name, frames_ in (("full frame", seq[:1]), ("stroke edit", seq[1:])):
         wire = payload = link_s = cpu_s = tiles = 0.0
         for f in frames_:
-            if name == "stroke edit" and not delta:
-                pass  # raw mode sends every tile every time: that is the baseline
             device_s[0] = 0.0
             t = time.perf_counter()
             r = disp.present(f)
@@ -120,8 +117,6 @@ def _run_link(link: str, report_size: int, pad: bool, mode: str, delta: bool, co
             if not delta:
                 disp._device_frame = None  # raw: never a delta base
         n = len(frames_)
-        if name == "full frame" and mode == "raw":
-            raw_full = wire
         rows.append(Row(link, name, mode, wire / n, payload / n, 0.0, link_s / n * 1000, cpu_s / n * 1000, tiles / n))
     disp.close()
     return rows[0], rows[1]

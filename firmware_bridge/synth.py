@@ -76,7 +76,8 @@ def stroke_edit(frame: np.ndarray, mask: np.ndarray, rng: np.random.Generator, w
         angle += rng.normal(0, 0.5)
         step = rng.uniform(10, 30)
         y, x = pts[-1]
-        pts.append((float(np.clip(y + step * np.sin(angle), 0, h - 1)), float(np.clip(x + step * np.cos(angle), 0, w - 1))))
+        pts.append((float(np.clip(y + step * np.sin(angle), 0, h - 1)),
+                    float(np.clip(x + step * np.cos(angle), 0, w - 1))))
     p = np.array(pts)
     y0 = int(max(p[:, 0].min() - width - margin, 0))
     y1 = int(min(p[:, 0].max() + width + margin + 1, h))

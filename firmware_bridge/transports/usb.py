@@ -77,10 +77,16 @@ class UsbTransport(ReportTransport):
                                 f"{' serial ' + c.serial if c.serial else ''} over usb)")
         dev = devs[0]
         try:
-            if dev.is_kernel_driver_active(c.interface):
+            try:
+                attached = dev.is_kernel_driver_active(c.interface)
+            except api.core.USBError:
+                raise
+            except Exception:  # noqa: BLE001 - backends without kernel drivers (macOS, Windows) cannot tell
+                attached = False
+            if attached:
                 dev.detach_kernel_driver(c.interface)
             dev.set_configuration()
-        except (api.core.USBError, NotImplementedError) as exc:
+        except api.core.USBError as exc:
             raise LinkError(f"cannot claim usb bridge {c.vid:04x}:{c.pid:04x} ({exc}); {UDEV_HINT}") from None
         self._dev = dev
         self._reset_framing()
