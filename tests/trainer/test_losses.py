@@ -1,0 +1,136 @@
+"""Loss wiring, including the three defects of the published code that we fix."""
+from __future__ import annotations
+
+import logging
+
+import pytest
+import torch
+from torch import nn
+
+from trainer.config import load_config
+from trainer.data.synthetic import generate_dataset
+from trainer.losses.perceptual import Perceptual, VGG16Features
+from trainer.methods import get_method
+from trainer.sampling import GarmentData
+
+torch.set_num_threads(2)
+
+
+@pytest.fixture(scope="module")
+def garment(tmp_path_factory):
+    return generate_dataset(tmp_path_factory.mktemp("synth"), garments=1, seed=0, frame=(192, 144),
+                            progress=False)[0]
+
+
+def _setup(garment, method="ours", overrides=()):
+    cfg = load_config("tiny", method=method, overrides=list(overrides))
+    torch.manual_seed(0)
+    data = GarmentData(garment, cfg.data)
+    m = get_method(method)(cfg, side=data.side)
+    return m, data.batch(0)
+
+
+def _grad_norm(module: nn.Module) -> float:
+    return sum(float(p.grad.abs().sum()) for p in module.parameters() if p.grad is not None)
+
+
+def test_tactile_gan_trains_tactile_branch_but_not_visual_branch(garment):
+    m, b = _setup(garment)
+    vis, tac = m.generator(b.sketch, b.mask)
+    terms = m.generator_losses(b, vis, tac)
+    m.generator.zero_grad()
+    terms["t_gan"].backward()
+    assert _grad_norm(m.generator.tactile) > 0        # the published code detached this term: zero here
+    assert _grad_norm(m.generator.visual) == 0        # paper: no gradient into G_I from the tactile D
+    assert _grad_norm(m.generator.downs) > 0          # the shared encoder learns from touch too
+
+
+def test_visual_losses_do_not_reach_tactile_branch(garment):
+    m, b = _setup(garment)
+    vis, tac = m.generator(b.sketch, b.mask)
+    terms = m.generator_losses(b, vis, tac)
+    m.generator.zero_grad()
+    (terms["v_gan"] + terms["v_l1"]).backward()
+    assert _grad_norm(m.generator.visual) > 0 and _grad_norm(m.generator.tactile) == 0
+
+
+@pytest.mark.parametrize("term", ["v_fm", "t_fm"])
+def test_feature_matching_is_active_and_has_gradient(garment, term):
+    m, b = _setup(garment)
+    vis, tac = m.generator(b.sketch, b.mask)
+    terms = m.generator_losses(b, vis, tac)
+    assert term in terms and terms[term].item() > 0
+    m.generator.zero_grad()
+    terms[term].backward()
+    assert _grad_norm(m.generator) > 0
+
+
+def test_generator_step_leaves_discriminators_untouched_by_generator_loss(garment):
+    m, b = _setup(garment)
+    m.step(b, 0)
+    for net in m.nets.values():
+        assert all(p.requires_grad for p in net.parameters())
+
+
+def test_ablation_flags_remove_terms(garment):
+    m, b = _setup(garment, "ours-no-gan")
+    vis, tac = m.generator(b.sketch, b.mask)
+    assert set(m.generator_losses(b, vis, tac)) == {"v_l1", "v_perc", "t_l1", "t_perc"}
+    m, b = _setup(garment, "no-tactile-rec")
+    vis, tac = m.generator(b.sketch, b.mask)
+    assert "t_l1" not in m.generator_losses(b, vis, tac) and "t_gan" in m.generator_losses(b, vis, tac)
+
+
+class _TinyEncoder(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.conv = nn.Conv2d(3, 4, 8, 8)
+
+    def forward(self, x):
+        return self.conv(x).mean(dim=(2, 3))
+
+
+def test_clip_head_has_optimizer_and_learns(garment, tmp_path):
+    path = tmp_path / "enc.pt"
+    torch.jit.script(_TinyEncoder()).save(str(path))
+    m, b = _setup(garment, overrides=[f"pretrained.clip_encoder={path}", "loss.clip_start=0"])
+    assert m.clip.active and "CLIP" in m.opts
+    before = [p.detach().clone() for p in m.clip.net.head.parameters()]
+    enc_before = [p.detach().clone() for p in m.clip.net.encoder.parameters()]
+    logs = m.step(b, 0)
+    assert "d_clip" in logs and "v_clip" in logs
+    assert any(not torch.equal(a, p) for a, p in zip(before, m.clip.net.head.parameters()))
+    assert all(torch.equal(a, p) for a, p in zip(enc_before, m.clip.net.encoder.parameters()))
+
+
+def test_no_clip_path_skips_with_one_log_line(garment, caplog):
+    with caplog.at_level(logging.WARNING):
+        m, _ = _setup(garment)
+    assert not m.clip.active and m.info["clip_d"] == "skipped"
+    assert sum("clip-d" in r.message for r in caplog.records) == 1
+
+
+def test_vgg_keys_match_torchvision_and_lpips_loads(tmp_path, caplog):
+    vgg = VGG16Features()
+    keys = [k for k in vgg.state_dict()]
+    convs = [0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28]   # torchvision vgg16().features conv indices
+    assert keys == [f"features.{i}.{w}" for i in convs for w in ("weight", "bias")]
+    torch.manual_seed(0)
+    state = {**vgg.state_dict(), "classifier.0.weight": torch.zeros(2, 2)}   # a full torchvision file has more
+    torch.save(state, tmp_path / "vgg16.pth")
+    lin = {f"lin{i}.model.1.weight": torch.rand(1, c, 1, 1) for i, c in enumerate((64, 128, 256, 512, 512))}
+    torch.save(lin, tmp_path / "lin.pth")
+    p = Perceptual(vgg16_path=str(tmp_path / "vgg16.pth"), lpips_lin_path=str(tmp_path / "lin.pth"))
+    assert p.kind == "lpips-vgg"
+    assert torch.equal(p.vgg.features[28].weight, vgg.features[28].weight)
+    x = torch.rand(1, 3, 64, 64) * 2 - 1
+    assert float(p(x, x)) == pytest.approx(0.0, abs=1e-7) and float(p(x, -x)) > 0
+    assert not any(q.requires_grad for q in p.parameters())
+
+
+def test_perceptual_substitute_when_weights_absent(caplog):
+    with caplog.at_level(logging.WARNING):
+        p = Perceptual(vgg16_path="/nonexistent/vgg16.pth")
+    assert p.kind == "ssim-gradient" and any("substitute" in r.message for r in caplog.records)
+    x = torch.rand(1, 3, 64, 64) * 2 - 1
+    assert float(p(x, x)) == pytest.approx(0.0, abs=1e-6) and float(p(x, x.flip(-1))) > 0.1

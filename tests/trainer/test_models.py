@@ -1,0 +1,103 @@
+"""Generator, positional encoding and discriminators: the exporter's contract."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from trainer.models.discriminators import MultiScaleD
+from trainer.models.generator import SingleOutput, TwoBranchUNet
+from trainer.models.pix2pix_generator import ResnetGenerator
+from trainer.models.posenc import positional_encoding
+
+torch.set_num_threads(2)
+
+
+def test_positional_encoding_matches_published_definition():
+    h, w = 5, 7
+    pe = positional_encoding(torch.zeros(2, 1, h, w), dim=4)
+    assert pe.shape == (2, 8, h, w)
+    for r in range(h):
+        for c in range(w):
+            px, py = c + 1, r + 1   # 1-based index within the crop; x = column
+            want = [math.sin(px), math.sin(1e-4 * px), math.cos(px), math.cos(1e-4 * px),
+                    math.sin(py), math.sin(1e-4 * py), math.cos(py), math.cos(1e-4 * py)]
+            assert pe[1, :, r, c].tolist() == pytest.approx(want, abs=1e-6)
+
+
+def test_positional_encoding_follows_traced_input_size():
+    """Built from the input's own shape: a graph traced at 256 px gives the right encoding at 512 px."""
+    traced = torch.jit.trace(lambda x: positional_encoding(x), torch.zeros(1, 1, 256, 256))
+    x = torch.zeros(1, 1, 512, 768)
+    assert torch.allclose(traced(x), positional_encoding(x))
+
+
+def test_generator_parameter_count_and_shapes():
+    g = TwoBranchUNet()
+    n = sum(p.numel() for p in g.parameters())
+    assert n == 1_465_575 and round(n / 1e6, 2) == 1.47
+    s = torch.rand(2, 1, 256, 512) * 2 - 1
+    v, t = g(s, torch.ones_like(s))
+    assert v.shape == (2, 3, 256, 512) and t.shape == (2, 2, 256, 512)
+    assert v.abs().max() <= 1 and t.abs().max() <= 1
+
+
+def test_generator_outputs_are_masked_and_input_is_masked():
+    torch.manual_seed(0)
+    g = TwoBranchUNet().eval()
+    s = torch.rand(1, 1, 256, 256) * 2 - 1
+    m = torch.zeros_like(s)
+    m[..., 64:192, 32:200] = 1
+    v, t = g(s, m)
+    assert (v * (1 - m)).abs().max() == 0 and (t * (1 - m)).abs().max() == 0
+    assert v[..., 64:192, 32:200].abs().sum() > 0
+    s2 = s.clone()
+    s2[..., :10, :10] = 0.77   # outside the mask: must not change anything
+    v2, t2 = g(s2, m)
+    assert torch.equal(v, v2) and torch.equal(t, t2)
+
+
+def test_single_branch_graphs_equal_combined_forward():
+    torch.manual_seed(1)
+    g = TwoBranchUNet().eval()
+    s = torch.rand(1, 1, 256, 256) * 2 - 1
+    m = torch.ones_like(s)
+    v, t = g(s, m)
+    assert torch.allclose(SingleOutput(g, output="visual")(s, m), v)
+    assert torch.allclose(SingleOutput(g, output="tactile")(s, m), t)
+    gv = TwoBranchUNet(outputs="tactile")
+    gv.load_state_dict(g.state_dict())
+    assert torch.allclose(gv.eval()(s, m), t)
+
+
+def test_bottleneck_at_256_is_not_degenerate():
+    """At 256 px the 8th down reaches 1x1; it has no norm, so the bottleneck still carries the input."""
+    torch.manual_seed(2)
+    g = TwoBranchUNet().eval()
+    m = torch.ones(1, 1, 256, 256)
+    a = g.encode(torch.rand(1, 1, 256, 256), m)[1][7]
+    b = g.encode(-torch.rand(1, 1, 256, 256), m)[1][7]
+    assert a.shape[-2:] == (1, 1) and torch.isfinite(a).all() and not torch.allclose(a, b)
+
+
+def test_generator_rejects_sizes_that_are_not_multiples_of_256():
+    g = TwoBranchUNet()
+    s = torch.zeros(1, 1, 300, 256)
+    with pytest.raises(AssertionError, match="multiples of 256"):
+        g(s, torch.ones_like(s))
+
+
+def test_pix2pix_generator_same_interface():
+    g = ResnetGenerator(ngf=8, n_blocks=2).eval()
+    s = torch.rand(3, 1, 32, 32)
+    m = torch.ones_like(s)
+    v, t = g(s, m)
+    assert v.shape == (3, 3, 32, 32) and t.shape == (3, 2, 32, 32)
+    assert torch.allclose(g.forward_tactile(s, m), t)
+
+
+def test_tactile_discriminator_handles_32px_patches_at_every_scale():
+    d = MultiScaleD(in_ch=7, ndf=8, n_layers=3, num_D=3, min_input=32)
+    out = d(torch.randn(4, 7, 32, 32))
+    assert len(out) == 3 and all(o[-1].shape[0] == 4 and o[-1].shape[1] == 1 and o[-1].numel() >= 4 for o in out)

@@ -1,0 +1,87 @@
+"""`vtkiosk train`: train one garment (or a catalogue, one garment after the other) with one method.
+
+Light at import time (argparse only); torch is imported inside `main`. Multi-GPU for one garment: run the same
+command under `torchrun --nproc_per_node=N -m trainer.cli ...`. A catalogue on a cluster: one job per garment
+(Slurm job array; see docs/training.md).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description="Train a visual-tactile garment model.")
+    p.add_argument("--data", required=True, type=Path, help="dataset folder (or one garment folder)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--garment", help="garment name (material, e.g. DenimShorts) or folder name")
+    which.add_argument("--all", action="store_true", help="every garment in --data, one after the other")
+    which.add_argument("--index", type=int, help="the N-th garment in --data (0-based; for Slurm job arrays)")
+    p.add_argument("--method", default="ours", help="ours, pix2pix, ours-no-gan, ours-no-rec, no-visual-gan, "
+                                                    "no-tactile-gan, no-visual-rec, no-tactile-rec")
+    p.add_argument("--preset", default="cpu", help="paper, cpu, tiny, or a path to a YAML preset")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one config value (repeatable), e.g. --set train.steps=100")
+    p.add_argument("--out", required=True, type=Path,
+                   help="run folder (with --all/--index: a parent folder; runs go to OUT/<garment>/<method>)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    p.add_argument("--steps", type=int, help="shorthand for --set train.steps=N")
+    return p
+
+
+def pick_garments(args) -> list[Path]:
+    from trainer.data.touchclothing import DatasetError, find_garments, parse_folder_name
+    found = find_garments(args.data)
+    if args.all:
+        return found
+    if args.index is not None:
+        if not 0 <= args.index < len(found):
+            raise DatasetError(f"--index {args.index} out of range: {args.data} holds {len(found)} garments")
+        return [found[args.index]]
+    if args.garment is None:
+        if len(found) == 1:
+            return found
+        raise DatasetError(f"{args.data} holds {len(found)} garments; name one with --garment or pass --all")
+    for g in found:
+        if args.garment in (g.name, parse_folder_name(g.name)[0]):
+            return [g]
+    names = ", ".join(parse_folder_name(g.name)[0] for g in found)
+    raise DatasetError(f"no garment {args.garment!r} in {args.data} (have: {names})")
+
+
+def main(argv: list[str], prog: str = "vtkiosk train") -> int:
+    args = build_parser(prog).parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    from trainer.config import load_config
+    overrides = list(args.overrides) + ([f"train.steps={args.steps}"] if args.steps else [])
+    cfg0 = load_config(args.preset, overrides=overrides, method=args.method)
+    from trainer.methods import get_method
+    get_method(cfg0.method)  # unknown names fail before any data is read
+    garments = pick_garments(args)
+    from trainer.distributed import cleanup, init_from_env
+    from trainer.loop import Trainer
+    from trainer.data.touchclothing import parse_folder_name
+    dist = init_from_env()
+    try:
+        for g in garments:
+            cfg = load_config(args.preset, overrides=overrides, method=args.method)
+            out = args.out if len(garments) == 1 and not args.all else \
+                args.out / parse_folder_name(g.name)[0] / cfg.method
+            if len(garments) == 1 and args.index is not None:
+                out = args.out / parse_folder_name(g.name)[0] / cfg.method
+            trainer = Trainer(cfg, g, out, resume=args.resume, dist=dist)
+            summary = trainer.run()
+            if dist is None or dist.main:
+                val = summary.get("val") or {}
+                print(f"{g.name} [{cfg.method}] step {summary['step']}: "
+                      + ", ".join(f"{k}={v:.4g}" for k, v in val.items() if k != "step")
+                      + f" ({summary['seconds_per_step']} s/step) -> {out}")
+    finally:
+        cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:], prog="python -m trainer.cli"))

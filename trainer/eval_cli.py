@@ -1,0 +1,45 @@
+"""`vtkiosk eval --run RUN [--json OUT]` and `vtkiosk eval --compare RUN... --out DIR`. Light imports; torch is
+imported inside `main`."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description="Evaluate trained runs; compare methods.")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--run", type=Path, help="a run folder (from vtkiosk train --out)")
+    mode.add_argument("--compare", type=Path, nargs="+", metavar="RUN", help="several runs: table + sheets")
+    p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
+    p.add_argument("--json", type=Path, help="also write the metrics here")
+    p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
+    p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
+    return p
+
+
+def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
+    args = build_parser(prog).parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    import torch
+    torch.set_num_threads(min(torch.get_num_threads(), 4))
+    if args.run is not None:
+        from trainer.evaluate import evaluate_run, write_eval
+        result = evaluate_run(args.run, args.which, swap=not args.no_swap)
+        write_eval(args.run, result, args.json)
+        print(json.dumps(result, indent=2))
+        return 0
+    from trainer.compare import compare
+    md, data = compare(args.compare, args.out, args.which)
+    if args.json is not None:
+        args.json.write_text(json.dumps(data, indent=2))
+    print(md)
+    print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}; sheets: {', '.join(data['sheets'])}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:], prog="python -m trainer.eval_cli"))
