@@ -18,7 +18,8 @@ def _summary(bundle) -> str:
         sizes = ", ".join(f"{w}x{h}" for w, h in g.sizes)
         lines.append(f"graph       {kind:8} {g.precision:5} {g.file}  sizes {sizes}")
     for prec, errs in m.errors.items():
-        lines.append(f"error       {prec:5} vs fp32: " + ", ".join(f"{k} {v:.4g}" for k, v in errs.items()))
+        against = "PyTorch" if prec == "fp32" else "fp32"
+        lines.append(f"error       {prec:5} vs {against}: " + ", ".join(f"{k} {v:.4g}" for k, v in errs.items()))
     for k, v in m.metrics.items():
         lines.append(f"metric      {k} {v:.4g}")
     return "\n".join(lines)

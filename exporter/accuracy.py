@@ -1,0 +1,43 @@
+"""Error of a lower-precision graph against the fp32 graph, in the units that matter at the kiosk:
+visual PSNR (dB), tactile mean absolute error (slope units), friction-map mean absolute error (uint8 levels)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import onnxruntime as ort
+
+from kiosk.haptics import friction_map
+from kiosk.sketch import NetworkInput
+
+
+def psnr(a: np.ndarray, b: np.ndarray, *, peak: float = 2.0) -> float:
+    """PSNR of two images in [-1, 1] (peak-to-peak 2); identical images give +inf, reported as 99 dB."""
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse <= 1e-12 else float(10 * np.log10(peak * peak / mse))
+
+
+def compare_sessions(ref: ort.InferenceSession, test: ort.InferenceSession, outputs: list[str],
+                     inputs: Sequence[NetworkInput], friction_scale: float) -> dict[str, float]:
+    """Mean over `inputs` of each error; the worst friction-map error is reported too."""
+    vis, tac, fric, fric_max = [], [], [], 0.0
+    for x in inputs:
+        feed = {"sketch": x.sketch, "mask": x.mask}
+        a = dict(zip(outputs, ref.run(outputs, feed)))
+        b = dict(zip(outputs, test.run(outputs, feed)))
+        if "visual" in a:
+            vis.append(psnr(a["visual"], b["visual"]))
+        if "tactile" in a:
+            tac.append(float(np.mean(np.abs(a["tactile"] - b["tactile"]))))
+            fa = friction_map(a["tactile"][0, 0], a["tactile"][0, 1], friction_scale).astype(np.int16)
+            fb = friction_map(b["tactile"][0, 0], b["tactile"][0, 1], friction_scale).astype(np.int16)
+            fric.append(float(np.mean(np.abs(fa - fb))))
+            fric_max = max(fric_max, float(np.abs(fa - fb).max()))
+    out: dict[str, float] = {}
+    if vis:
+        out["visual_psnr_db"] = float(np.mean(vis))
+    if tac:
+        out["tactile_mae"] = float(np.mean(tac))
+        out["friction_mae_levels"] = float(np.mean(fric))
+        out["friction_max_levels"] = fric_max
+    return out

@@ -1,0 +1,52 @@
+"""`vtkiosk export --run RUN --out garment.vtb [--precision int8|fp16|fp32] [--sign-key KEY]`."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _sizes(text: str) -> list[tuple[int, int]]:
+    out = []
+    for item in text.split(","):
+        item = item.strip().lower()
+        try:
+            w, h = (int(v) for v in item.split("x")) if "x" in item else (int(item), int(item))
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"sizes look like 512,768 or 1024x768; got {item!r}") from exc
+        out.append((w, h))
+    return out
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__)
+    p.add_argument("--run", type=Path, required=True, help="a training run folder (vtkiosk train --out)")
+    p.add_argument("--out", type=Path, required=True, help="bundle file to write (.vtb)")
+    p.add_argument("--precision", choices=("int8", "fp16", "fp32"), default="int8")
+    p.add_argument("--sizes", type=_sizes, default=[(512, 512), (768, 768)],
+                   help="input sizes the kiosk may run, multiples of 256 (default 512,768); int8 is calibrated "
+                        "at exactly these")
+    p.add_argument("--sign-key", type=Path, default=None, help="Ed25519 private key (vtkiosk keys generate)")
+    p.add_argument("--which", choices=("best", "latest"), default="best")
+    p.add_argument("--calibration", choices=("minmax", "percentile", "entropy"), default="minmax")
+    p.add_argument("--max-friction-mae", type=float, default=1.0,
+                   help="refuse an int8 graph whose friction-map error exceeds this many levels (default 1)")
+    p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
+    p.add_argument("--model-version", default=None)
+    p.add_argument("--display-name", default=None)
+    return p
+
+
+def main(argv: list[str], prog: str = "vtkiosk export") -> int:
+    args = build_parser(prog).parse_args(argv)
+    from exporter.export import ExportConfig, export_run
+    from exporter.keys import load_private_key
+
+    key = load_private_key(args.sign_key) if args.sign_key else None
+    cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
+                       calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
+                       force=args.force, model_version=args.model_version, display_name=args.display_name)
+    report = export_run(args.run, args.out, cfg, signing_key=key)
+    m = report.manifest
+    print(f"wrote {report.out}: {m.garment_id} {m.model_version}, {len(m.graphs)} graphs at {args.precision}, "
+          f"{'signed' if key else 'UNSIGNED (kiosks refuse it without --allow-unsigned)'}")
+    return 0

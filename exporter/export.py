@@ -1,0 +1,187 @@
+"""`vtkiosk export`: a trained run -> a signed `.vtb` bundle with full/tactile/visual graphs at one precision,
+its measured error against fp32, the garment's friction calibration and reference assets.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import platform
+import socket
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import exporter
+from exporter.accuracy import compare_sessions
+from exporter.bundle_writer import write_bundle
+from exporter.calibration import sketch_variants
+from exporter.graphs import export_graph, ort_session, parity
+from exporter.quantize import convert_fp16, quantize_int8
+from kiosk.errors import KioskError
+from kiosk.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.sketch import letterbox
+
+PARITY_BOUND = 1e-4
+
+
+class ExportError(KioskError):
+    """An export that must not produce a bundle; the message says why and what to change."""
+
+
+@dataclass
+class ExportConfig:
+    precision: str = "int8"
+    sizes: list[tuple[int, int]] = field(default_factory=lambda: [(512, 512), (768, 768)])
+    graphs: tuple[str, ...] = GRAPH_KINDS
+    calibration_per_size: int = 8
+    error_per_size: int = 4
+    calibration_method: str = "minmax"
+    max_friction_mae: float = 1.0      # uint8 levels; int8 graphs above this are refused unless forced
+    force: bool = False
+    which: str = "best"
+    panel_size: tuple[int, int] = (1280, 800)
+    model_version: str | None = None
+    display_name: str | None = None
+    seed: int = 0
+
+
+@dataclass
+class ExportReport:
+    manifest: Manifest
+    parity: dict[str, float]
+    errors: dict[str, dict[str, float]]
+    out: Path
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _garment_id(name: str) -> str:
+    material = name.removeprefix("singleskit_").split("_padded_")[0]
+    out = "".join(("-" + c.lower()) if c.isupper() and i else c.lower() for i, c in enumerate(material))
+    return "".join(c for c in out if c.isalnum() or c in "-._")[:64] or "garment"
+
+
+def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
+    """Sketch, mask and visual of the camera frame (not the padding): what the A/B study and attract screen show."""
+    from trainer.data.touchclothing import load_garment
+
+    g = load_garment(garment_dir, tactile=False)
+    (fw, fh), (ox, oy) = g.frame, g.offset
+    crop = (slice(oy, oy + fh), slice(ox, ox + fw))
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {"sketch": folder / "sketch.png", "mask": folder / "mask.png", "visual": folder / "visual.png"}
+    cv2.imwrite(str(paths["sketch"]), g.sketch[crop])
+    cv2.imwrite(str(paths["mask"]), g.mask[crop].astype(np.uint8) * 255)
+    if g.visual is None:
+        raise ExportError(f"{garment_dir}: no ground-truth visual to ship as a reference asset")
+    cv2.imwrite(str(paths["visual"]), cv2.cvtColor(g.visual[crop], cv2.COLOR_RGB2BGR))
+    return paths
+
+
+def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None, progress=print) -> ExportReport:
+    """Export, measure, refuse or write. Raises ExportError/CheckpointError with an operator-facing message."""
+    from trainer.checkpoint import load_generator
+    from trainer.config import config_from_dict
+
+    import yaml
+
+    run_dir = Path(run_dir)
+    if cfg.precision not in ("int8", "fp16", "fp32"):
+        raise ExportError(f"precision must be int8, fp16 or fp32; got {cfg.precision!r}")
+    for w, h in cfg.sizes:
+        if w % 256 or h % 256 or w < 256 or h < 256:
+            raise ExportError(f"sizes must be multiples of 256 (8 stride-2 levels); got {w}x{h}")
+    generator, info = load_generator(run_dir, cfg.which)
+    if info.get("generator_class", "TwoBranchUNet") != "TwoBranchUNet":
+        raise ExportError(f"run {run_dir} ({info.get('method')}) uses {info.get('generator_class')}, which has no "
+                          "separate visual/tactile branches; only two-branch runs export to kiosk bundles")
+    run_cfg = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    garment_dir = Path(run_cfg.garment)
+    if not garment_dir.is_dir():
+        raise ExportError(f"the run's garment folder {garment_dir} is not here; the exporter needs its sketch, "
+                          "mask and visual as reference assets")
+    scale = info.get("friction_scale")
+    if not isinstance(scale, (int, float)) or not scale > 0:
+        raise ExportError(f"run {run_dir} has no friction calibration (friction_scale) in its checkpoint")
+    with tempfile.TemporaryDirectory(prefix="vtkiosk-export-") as tmp_s:
+        tmp = Path(tmp_s)
+        assets = _reference_assets(garment_dir, tmp / "assets")
+        sketch = cv2.imread(str(assets["sketch"]), cv2.IMREAD_GRAYSCALE)
+        calibration = sketch_variants(sketch, cfg.sizes, per_size=cfg.calibration_per_size, seed=cfg.seed)
+        held_out = sketch_variants(sketch, cfg.sizes, per_size=cfg.error_per_size, seed=cfg.seed + 1000)
+        sources: dict[str, Path] = {f"assets/{k}.png": p for k, p in assets.items()}
+        graphs: dict[str, GraphSpec] = {}
+        parities: dict[str, float] = {}
+        errors: dict[str, dict[str, float]] = {}
+        for kind in cfg.graphs:
+            fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0])
+            parities[kind] = parity(generator, kind, fp32, [(x.sketch, x.mask) for x in held_out[:2]])
+            progress(f"export: {kind} graph fp32, max |ONNX - PyTorch| = {parities[kind]:.2e}")
+            if parities[kind] > PARITY_BOUND:
+                raise ExportError(f"{kind} graph differs from PyTorch by {parities[kind]:.2e} (> {PARITY_BOUND}); "
+                                  "the export is wrong")
+            path = fp32
+            if cfg.precision == "int8":
+                path = quantize_int8(fp32, tmp / f"{kind}.int8.onnx", calibration, method=cfg.calibration_method)
+            elif cfg.precision == "fp16":
+                path = convert_fp16(fp32, tmp / f"{kind}.fp16.onnx")
+            if cfg.precision != "fp32":
+                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale)
+                errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
+                progress(f"export: {kind} graph {cfg.precision} vs fp32: " +
+                         ", ".join(f"{k} {v:.4g}" for k, v in err.items()))
+                fmae = err.get("friction_mae_levels")
+                if fmae is not None and fmae > cfg.max_friction_mae and cfg.precision == "int8" and not cfg.force:
+                    raise ExportError(f"int8 {kind} graph's friction-map error is {fmae:.2f} levels of 255 "
+                                      f"(bound {cfg.max_friction_mae}); not writing it. Export fp32/fp16, raise "
+                                      "--max-friction-mae, or --force")
+            rel = f"graphs/{kind}.{cfg.precision}.onnx"
+            sources[rel] = path
+            graphs[kind] = GraphSpec(rel, cfg.precision, list(GRAPH_OUTPUTS[kind]), [list(s) for s in cfg.sizes])
+        metrics = {}
+        metrics_path = run_dir / "metrics.json"
+        if metrics_path.is_file():
+            import json
+
+            raw = json.loads(metrics_path.read_text())
+            flat = raw.get("final", raw) if isinstance(raw, dict) else {}
+            metrics = {k: float(v) for k, v in flat.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and np.isfinite(v)}
+        ck_path = Path(info["path"])
+        now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0)
+        manifest = Manifest(
+            schema_version=SCHEMA_VERSION,
+            garment_id=_garment_id(garment_dir.name),
+            display_name=cfg.display_name or garment_dir.name.removeprefix("singleskit_").split("_padded_")[0],
+            model_version=cfg.model_version or f"{now:%Y%m%d}-{info.get('step', 0)}",
+            method=str(info.get("method") or run_cfg.method),
+            created_at=now.isoformat().replace("+00:00", "Z"),
+            exporter_version=exporter.__version__,
+            source_run=str(run_dir.resolve()),
+            checkpoint_sha256=_sha256(ck_path),
+            graphs=graphs,
+            friction_scale=float(scale),
+            friction_normalization="calibrated",
+            pixel_pitch_mm=0.3,
+            panel_size=list(cfg.panel_size),
+            assets={k: f"assets/{k}.png" for k in assets},
+            files={},
+            metrics=metrics,
+            errors={**errors, "fp32": {f"{k}_onnx_vs_torch_max_abs": v for k, v in parities.items()}},
+            provenance={"host": socket.gethostname(), "python": platform.python_version(),
+                        "checkpoint": ck_path.name, "calibration": f"{cfg.calibration_method}, "
+                        f"{cfg.calibration_per_size} sketches per size",
+                        "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
+        )
+        written = write_bundle(out, manifest, sources, signing_key=signing_key)
+    return ExportReport(written, parities, errors, Path(out))
+
+
+def fitted_sketch(sketch: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The reference sketch letterboxed to a graph size (what the bench and probe feed)."""
+    return letterbox(sketch, size)[0]

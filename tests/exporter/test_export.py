@@ -1,0 +1,106 @@
+"""`vtkiosk export` on a real (briefly trained) run: parity, precisions, the error-bound refusal, verify."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from exporter.export import ExportConfig, ExportError, export_run
+from exporter.graphs import export_graph, ort_session, torch_outputs
+from kiosk.bundle import open_bundle
+from kiosk.probe import probe_bundle
+from kiosk.sketch import letterbox, network_input, object_mask
+
+pytestmark = pytest.mark.slow
+
+
+def vtk(*args):
+    return subprocess.run([sys.executable, "-m", "vtkiosk", *map(str, args)], capture_output=True, text=True,
+                          timeout=900)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("export")
+    data = tmp / "data"
+    proc = vtk("data", "synth", "--out", data, "--garments", 1, "--frame", "320x240", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    run = tmp / "run"
+    proc = vtk("train", "--data", data, "--garment", "DenimShorts", "--preset", "tiny", "--steps", 2, "--out", run)
+    assert proc.returncode == 0, proc.stderr
+    return run
+
+
+def test_fp32_parity_and_dynamic_size(run_dir, tmp_path):
+    from trainer.checkpoint import load_generator
+    gen, _ = load_generator(run_dir)
+    path = export_graph(gen, "full", tmp_path / "full.onnx", size=(256, 256))
+    sess = ort_session(path)
+    rng = np.random.default_rng(0)
+    for w, h in ((256, 256), (512, 256)):  # one graph, several sizes
+        s = np.where(rng.random((h, w)) < 0.05, 0, 255).astype(np.uint8)
+        s[:8] = 0
+        s[-8:] = 0
+        s[:, :8] = 0
+        s[:, -8:] = 0
+        x = network_input(s, object_mask(s))
+        ref = torch_outputs(gen, "full", x.sketch, x.mask)
+        got = sess.run(["visual", "tactile"], {"sketch": x.sketch, "mask": x.mask})
+        assert got[0].shape == (1, 3, h, w) and got[1].shape == (1, 2, h, w)
+        assert max(float(np.abs(a - b).max()) for a, b in zip(ref, got)) < 1e-4
+
+
+def test_tactile_graph_equals_full_graphs_tactile(run_dir, tmp_path):
+    from trainer.checkpoint import load_generator
+    gen, _ = load_generator(run_dir)
+    full = ort_session(export_graph(gen, "full", tmp_path / "f.onnx", size=(256, 256)))
+    tac = ort_session(export_graph(gen, "tactile", tmp_path / "t.onnx", size=(256, 256)))
+    s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+    s[40:200, 40] = 0
+    s[40:200, 210] = 0
+    s[40, 40:211] = 0
+    s[200, 40:211] = 0
+    x = network_input(s, object_mask(s))
+    a = full.run(["tactile"], {"sketch": x.sketch, "mask": x.mask})[0]
+    b = tac.run(["tactile"], {"sketch": x.sketch, "mask": x.mask})[0]
+    assert np.abs(a - b).max() < 1e-5
+
+
+def test_export_fp16_bundle_verifies(run_dir, tmp_path):
+    report = export_run(run_dir, tmp_path / "g.vtb", ExportConfig(precision="fp16", sizes=[(256, 256)],
+                                                                 calibration_per_size=2, error_per_size=2),
+                        progress=lambda *_: None)
+    assert report.errors["fp16"]["tactile_friction_mae_levels"] < 1.0
+    assert all(v < 1e-4 for v in report.parity.values())
+    b = open_bundle(tmp_path / "g.vtb", None, workdir=tmp_path / "w", allow_unsigned=True)
+    assert set(b.manifest.graphs) == {"full", "tactile", "visual"}
+    assert b.manifest.friction_scale > 0 and b.asset("visual").ndim == 3
+    assert [r.graph for r in probe_bundle(b)] == ["full", "tactile", "visual"]
+
+
+def test_int8_error_bound_refusal_and_force(run_dir, tmp_path):
+    cfg = ExportConfig(precision="int8", sizes=[(256, 256)], calibration_per_size=3, error_per_size=2,
+                       graphs=("tactile",), max_friction_mae=0.0)
+    with pytest.raises(ExportError, match="friction-map error"):
+        export_run(run_dir, tmp_path / "q.vtb", cfg, progress=lambda *_: None)
+    assert not (tmp_path / "q.vtb").exists()
+    cfg.force = True
+    report = export_run(run_dir, tmp_path / "q.vtb", cfg, progress=lambda *_: None)
+    assert "tactile_friction_mae_levels" in report.errors["int8"]
+    assert (tmp_path / "q.vtb").exists()
+
+
+def test_cli_signed_export_and_errors(run_dir, tmp_path):
+    assert vtk("keys", "generate", "--out", tmp_path / "keys").returncode == 0
+    (tmp_path / "trusted").mkdir()
+    (tmp_path / "trusted" / "operator.pub").write_bytes((tmp_path / "keys" / "operator.pub").read_bytes())
+    proc = vtk("export", "--run", run_dir, "--out", tmp_path / "s.vtb", "--precision", "fp32", "--sizes", "256",
+               "--sign-key", tmp_path / "keys" / "operator.key")
+    assert proc.returncode == 0, proc.stderr
+    assert "signed" in proc.stdout
+    ok = vtk("bundle", "verify", tmp_path / "s.vtb", "--trusted-keys", tmp_path / "trusted")
+    assert ok.returncode == 0 and "verified    ok" in ok.stdout
+    bad = vtk("export", "--run", tmp_path / "nope", "--out", tmp_path / "x.vtb")
+    assert bad.returncode == 2 and "no checkpoint" in bad.stderr and "Traceback" not in bad.stderr
+    bad = vtk("export", "--run", run_dir, "--out", tmp_path / "x.vtb", "--sizes", "300")
+    assert bad.returncode == 2 and "multiples of 256" in bad.stderr
