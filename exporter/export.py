@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import json
 import platform
 import socket
 import tempfile
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 import exporter
 from exporter.accuracy import compare_sessions
@@ -22,7 +24,6 @@ from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import convert_fp16, quantize_int8
 from kiosk.errors import KioskError
 from kiosk.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
-from kiosk.sketch import letterbox
 
 PARITY_BOUND = 1e-4
 
@@ -88,8 +89,6 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     from trainer.checkpoint import load_generator
     from trainer.config import config_from_dict
 
-    import yaml
-
     run_dir = Path(run_dir)
     if cfg.precision not in ("int8", "fp16", "fp32"):
         raise ExportError(f"precision must be int8, fp16 or fp32; got {cfg.precision!r}")
@@ -146,8 +145,6 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         metrics = {}
         metrics_path = run_dir / "metrics.json"
         if metrics_path.is_file():
-            import json
-
             raw = json.loads(metrics_path.read_text())
             flat = raw.get("final", raw) if isinstance(raw, dict) else {}
             metrics = {k: float(v) for k, v in flat.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
@@ -180,8 +177,3 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         )
         written = write_bundle(out, manifest, sources, signing_key=signing_key)
     return ExportReport(written, parities, errors, Path(out))
-
-
-def fitted_sketch(sketch: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """The reference sketch letterboxed to a graph size (what the bench and probe feed)."""
-    return letterbox(sketch, size)[0]
