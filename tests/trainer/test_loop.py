@@ -1,0 +1,163 @@
+"""Training loop: every method trains, resume is exact, checkpoints fail loudly, CLI train -> eval, DDP."""
+from __future__ import annotations
+
+import json
+import os
+import socket
+
+import pytest
+import torch
+
+from trainer.checkpoint import CheckpointError, load_generator
+from trainer.config import load_config
+from trainer.data.synthetic import generate_dataset
+from trainer.evaluate import evaluate_run
+from trainer.loop import Trainer
+from trainer.methods import METHODS
+from trainer.models.generator import TwoBranchUNet
+from trainer.models.pix2pix_generator import ResnetGenerator
+from vtkiosk.cli import main as vtkiosk
+
+torch.set_num_threads(2)
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth")
+    generate_dataset(root, garments=2, seed=0, frame=(192, 144), progress=False)
+    return root
+
+
+def _garment(synth):
+    return synth / "singleskit_DenimShorts_padded_270_x1"
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_every_method_trains_and_checkpoints(synth, tmp_path, method):
+    cfg = load_config("tiny", method=method, overrides=["train.steps=2"])
+    tr = Trainer(cfg, _garment(synth), tmp_path / "run")
+    init = {k: v.clone() for k, v in tr.method.generator.state_dict().items()}
+    summary = tr.run()
+    assert summary["step"] == 2 and all(torch.isfinite(torch.tensor(v)).all()
+                                        for h in tr.history for k, v in h.items())
+    net, info = load_generator(tmp_path / "run", "latest")
+    assert info["method"] == method and info["step"] == 2 and info["friction_scale"] > 0
+    assert isinstance(net, ResnetGenerator if method == "pix2pix" else TwoBranchUNet) and not net.training
+    assert any(not torch.equal(init[k], v) for k, v in net.state_dict().items())
+    for f in ("config.yaml", "metrics.json", "curves.png", "samples/step_00002.png", "checkpoints/best.pt"):
+        assert (tmp_path / "run" / f).is_file(), f
+
+
+def test_resume_is_bit_identical(synth, tmp_path):
+    def cfg():
+        return load_config("tiny", overrides=["train.steps=4", "train.deterministic=true", "train.ckpt_every=2"])
+    full = Trainer(cfg(), _garment(synth), tmp_path / "full")
+    full.run()
+    part = Trainer(cfg(), _garment(synth), tmp_path / "part")
+    part.run(until=2)
+    resumed = Trainer(cfg(), _garment(synth), tmp_path / "part", resume=True)
+    assert resumed.step == 2
+    resumed.run()
+    a, b = full.method.state_dict(), resumed.method.state_dict()
+    for k, v in a["generator"].items():
+        assert torch.equal(v, b["generator"][k]), k
+    for name in a["nets"]:
+        for k, v in a["nets"][name].items():
+            assert torch.equal(v, b["nets"][name][k]), (name, k)
+    assert [h["g_total"] for h in full.history] == [h["g_total"] for h in resumed.history]
+
+
+def test_seeded_runs_repeat_and_seeds_differ(synth, tmp_path):
+    def weights(seed, out):
+        tr = Trainer(load_config("tiny", overrides=["train.steps=1", f"train.seed={seed}"]), _garment(synth), out)
+        tr.run()
+        return tr.method.generator.state_dict()
+    a, b, c = weights(0, tmp_path / "a"), weights(0, tmp_path / "b"), weights(1, tmp_path / "c")
+    assert all(torch.equal(a[k], b[k]) for k in a) and not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_refuses_to_overwrite_a_run(synth, tmp_path):
+    Trainer(load_config("tiny", overrides=["train.steps=1"]), _garment(synth), tmp_path / "r").run()
+    with pytest.raises(CheckpointError, match="--resume"):
+        Trainer(load_config("tiny", overrides=["train.steps=1"]), _garment(synth), tmp_path / "r")
+
+
+def test_missing_or_corrupt_checkpoint_is_a_clear_error(tmp_path):
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        load_generator(tmp_path, "best")
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "best.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="unreadable"):
+        load_generator(tmp_path, "best")
+    torch.save({"generator": {"x": torch.zeros(1)}, "model_config": {"base": 10}}, tmp_path / "checkpoints" / "best.pt")
+    with pytest.raises(CheckpointError, match="do not fit"):
+        load_generator(tmp_path, "best")
+    assert getattr(CheckpointError, "user_facing", False)
+
+
+@pytest.mark.slow
+def test_real_layout_folder_trains_and_evaluates(real_layout_dir, tmp_path):
+    out = tmp_path / "real"
+    rc = vtkiosk(["train", "--data", str(real_layout_dir), "--preset", "tiny", "--set", "train.steps=2",
+                  "--out", str(out)])
+    assert rc == 0
+    rc = vtkiosk(["eval", "--run", str(out), "--json", str(tmp_path / "m.json")])
+    assert rc == 0
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["crop"] == 768 and m["test_patches"] == 2
+    for k in ("visual_psnr", "visual_ssim", "visual_l1", "tactile_mse", "tactile_angle_deg"):
+        assert isinstance(m[k], float) and m[k] == m[k]
+    assert "full_angle_deg" not in m   # real data has no full-field ground truth
+    assert json.loads((out / "metrics.json").read_text())["eval"]["step"] == 2
+
+
+@pytest.mark.slow
+def test_cli_all_eval_compare_on_synthetic(synth, tmp_path, capsys):
+    out = tmp_path / "runs"
+    assert vtkiosk(["train", "--data", str(synth), "--all", "--preset", "tiny", "--steps", "1",
+                    "--out", str(out)]) == 0
+    assert vtkiosk(["train", "--data", str(synth), "--garment", "DenimShorts", "--method", "pix2pix",
+                    "--preset", "tiny", "--steps", "1", "--out", str(out / "DenimShorts" / "pix2pix")]) == 0
+    runs = [out / "DenimShorts" / "ours", out / "CorduroyTrousers" / "ours"]
+    assert all((r / "checkpoints" / "best.pt").is_file() for r in runs)
+    m = evaluate_run(runs[0])
+    assert {"full_angle_deg", "full_friction_mae"} <= set(m) and (runs[0] / "eval" / "swap.png").is_file()
+    cmp_dir = tmp_path / "cmp"
+    assert vtkiosk(["eval", "--compare", str(runs[0]), str(out / "DenimShorts" / "pix2pix"), "--out",
+                    str(cmp_dir)]) == 0
+    md = (cmp_dir / "compare.md").read_text()
+    assert "| ours |" in md and "| pix2pix |" in md and "**" in md
+    assert (cmp_dir / "sheet_DenimShorts.png").is_file()
+    capsys.readouterr()
+    assert vtkiosk(["eval", "--run", str(tmp_path / "nothing")]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+
+
+def _ddp_worker(rank, world, port, garment, out, results):
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world), RANK=str(rank),
+                      LOCAL_RANK=str(rank))
+    from trainer.distributed import cleanup, init_from_env
+    torch.set_num_threads(1)
+    dist = init_from_env("gloo")
+    cfg = load_config("tiny", overrides=["train.steps=2", "train.threads=1"])
+    tr = Trainer(cfg, garment, out, dist=dist)
+    tr.run()
+    # Parameters must agree; BatchNorm running statistics of the Ds are per-rank (as in DDP without SyncBN).
+    torch.save({"G": dict(tr.method.generator.named_parameters()), "DT": dict(tr.method.nets["DT"].named_parameters())},
+               f"{results}/rank{rank}.pt")
+    cleanup()
+
+
+@pytest.mark.slow
+def test_ddp_gloo_two_processes_stay_in_sync(synth, tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    torch.multiprocessing.spawn(_ddp_worker, args=(2, port, str(_garment(synth)), str(tmp_path / "run"),
+                                                   str(tmp_path)), nprocs=2, join=True)
+    r0, r1 = torch.load(tmp_path / "rank0.pt"), torch.load(tmp_path / "rank1.pt")
+    for part in ("G", "DT"):
+        for k, v in r0[part].items():
+            assert torch.equal(v, r1[part][k]), (part, k)
+    net, info = load_generator(tmp_path / "run", "latest")
+    assert info["step"] == 2

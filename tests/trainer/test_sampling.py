@@ -1,0 +1,82 @@
+"""Patch sampler and augmentation on a folder in the published layout (known gradient field)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tests.conftest import field_gx
+from trainer.augment import eval_crop_origin, object_bbox, origin_range, random_crop_origin
+from trainer.config import DataConfig
+from trainer.sampling import GarmentData, cut, laplacian_weights
+
+
+@pytest.fixture(scope="module")
+def data(real_layout_dir):
+    return GarmentData(real_layout_dir / "singleskit_DenimToy_padded_1800_x1",
+                       DataConfig(crop=256, patches=16, unpaired=8), seed=3)
+
+
+def test_crop_grows_to_hold_the_object_and_keeps_it_inside(data):
+    assert data.side == 768   # the 680x560 object needs 3 x 256
+    x0, y0, x1, y1 = object_bbox(data.g.mask)
+    for step in range(20):
+        b = data.batch(step)
+        ox, oy = b.origin
+        assert ox <= x0 and oy <= y0 and x1 <= ox + data.side and y1 <= oy + data.side
+        assert int(b.mask.sum()) == int(data.g.mask.sum())   # the whole object is in every crop
+
+
+def test_paired_patches_land_where_the_tactile_files_say(data):
+    gx_full, gy_full = field_gx((1800, 1800))
+    b = data.batch(5)
+    ox, oy = b.origin
+    assert b.gx.shape == (16, 1, 32, 32)
+    for k, (px, py) in enumerate(b.origins.tolist()):
+        want_x = gx_full[oy + py:oy + py + 32, ox + px:ox + px + 32]
+        want_y = gy_full[oy + py:oy + py + 32, ox + px:ox + px + 32]
+        np.testing.assert_allclose(b.gx[k, 0].numpy(), want_x, atol=1e-6)
+        np.testing.assert_allclose(b.gy[k, 0].numpy(), want_y, atol=1e-6)
+    # and the sketch patch at that origin is the garment's sketch there (the same coordinates for every modality)
+    sk = cut(b.sketch, b.origins[:1])[0, 0].numpy()
+    px, py = b.origins[0]
+    raw = data.g.sketch[oy + py:oy + py + 32, ox + px:ox + px + 32].astype(np.float32) / 127.5 - 1
+    np.testing.assert_allclose(sk, raw * data.g.mask[oy + py:oy + py + 32, ox + px:ox + px + 32], atol=1e-6)
+
+
+def test_unpaired_patches_are_centred_on_the_object(data):
+    b = data.batch(2)
+    assert len(b.unpaired) == 8
+    m = b.mask[0, 0].numpy()
+    for x, y in b.unpaired.tolist():
+        assert m[y + 16, x + 16] == 1 and x + 32 <= data.side and y + 32 <= data.side
+
+
+def test_batches_are_a_pure_function_of_seed_and_step(data):
+    a, b, c = data.batch(7), data.batch(7), data.batch(8)
+    assert a.origin == b.origin and np.array_equal(a.origins, b.origins) and torch.equal(a.gx, b.gx)
+    assert a.origin != c.origin or not np.array_equal(a.origins, c.origins)
+
+
+def test_laplacian_weights_prefer_sketch_lines():
+    sketch = np.full((128, 128), 255, np.uint8)
+    sketch[60:62, :] = 0
+    w = laplacian_weights(sketch, np.array([[10, 45], [10, 2], [50, 90]]), floor=0.1)
+    assert w.sum() == pytest.approx(1.0) and w[0] > 5 * w[1] and w[1] == pytest.approx(w[2])
+
+
+def test_fixed_validation_set_is_the_centre_crop(data):
+    v1, v2 = data.eval_set("val"), data.eval_set("val")
+    assert v1.origin == v2.origin == eval_crop_origin(data.g.mask, data.side)
+    assert torch.equal(v1.gx, v2.gx) and len(v1.origins) == 2   # one patch per val touch
+
+
+def test_origin_range_matches_published_for_full_frame_object():
+    """An object filling the 1280x960 frame: x origins [4, 260] (1540 - 1536 .. 260), y [0, 264]."""
+    m = np.zeros((1800, 1800), bool)
+    m[420:1380, 260:1540] = True
+    (xa, xb), (ya, yb) = origin_range(m, 1536)
+    assert (xa, xb) == (4, 260) and (ya, yb) == (0, 264)
+    rng = np.random.default_rng(0)
+    xs = [random_crop_origin(m, 1536, rng)[0] for _ in range(200)]
+    assert min(xs) >= 4 and max(xs) <= 260 and len(set(xs)) > 50
