@@ -1,0 +1,36 @@
+"""Typed configs from YAML presets; errors name the key."""
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from trainer.config import ConfigError, config_from_dict, load_config
+
+
+@pytest.mark.parametrize("preset", ["paper", "cpu", "tiny"])
+def test_presets_load_and_round_trip(preset, tmp_path):
+    cfg = load_config(preset)
+    assert cfg.preset == preset and cfg.data.crop % 256 == 0
+    cfg.dump(tmp_path / "c.yaml")
+    again = config_from_dict(yaml.safe_load((tmp_path / "c.yaml").read_text()))
+    assert again == cfg
+
+
+def test_paper_preset_is_the_published_schedule():
+    cfg = load_config("paper")
+    assert (cfg.data.crop, cfg.train.steps, cfg.data.patches, cfg.data.unpaired) == (1536, 81000, 64, 32)
+    assert (cfg.optim.lr, cfg.optim.betas, cfg.optim.lr_tactile_d) == (1e-3, (0.0, 0.99), 5e-4)
+    assert (cfg.loss.visual_l1, cfg.loss.tactile_gan, cfg.loss.tactile_l1) == (100, 5, 10)
+
+
+def test_overrides_are_typed_and_unknown_keys_fail():
+    cfg = load_config("cpu", overrides=["train.steps=7", "optim.betas=[0.5, 0.9]", "pretrained.vgg16=/x.pth"])
+    assert cfg.train.steps == 7 and cfg.optim.betas == (0.5, 0.9) and cfg.pretrained.vgg16 == "/x.pth"
+    with pytest.raises(ConfigError, match="train.stepz"):
+        load_config("cpu", overrides=["train.stepz=7"])
+    with pytest.raises(ConfigError, match="train.steps"):
+        load_config("cpu", overrides=["train.steps=abc"])
+    with pytest.raises(ConfigError, match="multiple of 256"):
+        load_config("cpu", overrides=["data.crop=300"])
+    with pytest.raises(ConfigError, match="no preset"):
+        load_config("gpu-fast")
