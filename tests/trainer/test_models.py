@@ -101,3 +101,21 @@ def test_tactile_discriminator_handles_32px_patches_at_every_scale():
     d = MultiScaleD(in_ch=7, ndf=8, n_layers=3, num_D=3, min_input=32)
     out = d(torch.randn(4, 7, 32, 32))
     assert len(out) == 3 and all(o[-1].shape[0] == 4 and o[-1].shape[1] == 1 and o[-1].numel() >= 4 for o in out)
+
+
+def test_tactile_graph_exports_to_onnx_with_dynamic_size(tmp_path):
+    """The exporter's path: traced at 256 px, run by ONNX Runtime at 512x256, same numbers as torch."""
+    import onnxruntime as ort
+    torch.manual_seed(3)
+    g = TwoBranchUNet().eval()
+    s = torch.zeros(1, 1, 256, 256)
+    path = tmp_path / "tactile.onnx"
+    torch.onnx.export(SingleOutput(g, output="tactile"), (s, torch.ones_like(s)), str(path),
+                      input_names=["sketch", "mask"], output_names=["tactile"], dynamo=False,
+                      dynamic_axes={"sketch": {2: "h", 3: "w"}, "mask": {2: "h", 3: "w"}})
+    s2 = torch.rand(1, 1, 512, 256) * 2 - 1
+    m2 = torch.ones_like(s2)
+    out = ort.InferenceSession(str(path)).run(None, {"sketch": s2.numpy(), "mask": m2.numpy()})[0]
+    with torch.no_grad():
+        want = g.forward_tactile(s2, m2).numpy()
+    assert out.shape == (1, 2, 512, 256) and abs(out - want).max() < 1e-4
