@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from kiosk.errors import InputError
+from kiosk.validate import check_size
 
 # Below this, a calibrated friction scale would turn sensor noise into full friction; see `calibrate_scale`.
 MIN_FRICTION_SCALE = 1e-4
@@ -200,16 +201,6 @@ def _min_max(a: np.ndarray) -> np.ndarray:
     return (a - lo) / rng
 
 
-def _check_size(size: object) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in size)  # type: ignore[union-attr]
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"size must be (width, height) in device pixels; got {size!r}") from exc
-    if w < 1 or h < 1 or w > 16384 or h > 16384:
-        raise InputError(f"size must be between 1x1 and 16384x16384 device pixels; got {w}x{h}")
-    return w, h
-
-
 def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, int] | None = None, *,
                  normalization: Normalization = "calibrated", quantile: float = 0.98,
                  counter: NonFiniteCounter | None = None) -> np.ndarray:
@@ -252,7 +243,7 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     else:
         raise InputError(f"normalization must be 'calibrated' or 'quantile'; got {normalization!r}")
     if size is not None:
-        w, h = _check_size(size)
+        w, h = check_size(size, "device pixels")
         if (w, h) != (zp.shape[1], zp.shape[0]):
             shrink = w <= zp.shape[1] and h <= zp.shape[0]
             zp = cv2.resize(zp, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from kiosk.errors import InputError
+from kiosk.validate import MAX_SIDE, check_size
 
 INK = 0
 PAPER = 255
@@ -25,7 +26,6 @@ PAPER = 255
 LINE_PX = 2
 # Refuse stroke sets larger than this (a stuck touch controller), instead of drawing for seconds.
 MAX_POINTS = 200_000
-MAX_SIDE = 16384
 
 
 class NetworkInput(NamedTuple):
@@ -36,16 +36,6 @@ class NetworkInput(NamedTuple):
 
     sketch: np.ndarray
     mask: np.ndarray
-
-
-def _check_size(size: object) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in size)  # type: ignore[union-attr]
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"size must be (width, height) in pixels; got {size!r}") from exc
-    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
-        raise InputError(f"size must be between 1x1 and {MAX_SIDE}x{MAX_SIDE} pixels; got {w}x{h}")
-    return w, h
 
 
 def _check_sketch(sketch: object) -> np.ndarray:
@@ -91,7 +81,7 @@ def rasterize(strokes: Iterable[Sequence[Sequence[float]]], size: tuple[int, int
         >>> int((s == 0).sum()) > 0
         True
     """
-    w, h = _check_size(size)
+    w, h = check_size(size)
     if isinstance(width_px, bool) or not isinstance(width_px, (int, np.integer)) or not 1 <= width_px <= 64:
         raise InputError(f"width_px must be an integer from 1 to 64; got {width_px!r}")
     if base is None:
@@ -260,7 +250,7 @@ def letterbox(sketch: object, size: tuple[int, int]) -> tuple[np.ndarray, tuple[
     Shape: (H, W) uint8 -> (height, width) uint8.
     """
     s = _check_sketch(sketch)
-    w, h = _check_size(size)
+    w, h = check_size(size)
     scale = min(w / s.shape[1], h / s.shape[0])
     nw, nh = max(1, round(s.shape[1] * scale)), max(1, round(s.shape[0] * scale))
     interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST
