@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from kiosk.errors import InputError
-from kiosk.validate import MAX_SIDE, check_size
+from kiosk.validate import check_size
 
 INK = 0
 PAPER = 255
