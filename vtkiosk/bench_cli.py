@@ -1,0 +1,28 @@
+"""`vtkiosk bench infer|e2e`: route to the benchmark that owns each measurement.
+
+`infer` measures bundles (and PyTorch eager beside them, when torch is installed), so it lives on the exporter side;
+`e2e` drives a running kiosk daemon and must never import torch, so it lives in `kiosk/`. Imported lazily for that
+reason.
+"""
+from __future__ import annotations
+
+import importlib
+
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "infer": ("exporter.bench_infer", "latency, memory and error of a bundle's graphs per size x precision"),
+    "e2e": ("kiosk.bench_e2e", "stroke end -> friction frame committed / visual shown, against a live daemon"),
+}
+
+
+def main(argv: list[str], prog: str = "vtkiosk bench") -> int:
+    if not argv or argv[0] in ("-h", "--help"):
+        print(f"usage: {prog} {{{','.join(SUBCOMMANDS)}}} [options]\n")
+        for name, (_, summary) in SUBCOMMANDS.items():
+            print(f"  {name:6s} {summary}")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in SUBCOMMANDS:
+        print(f"{prog}: unknown benchmark {name!r} (choose from {', '.join(SUBCOMMANDS)})")
+        return 2
+    module = importlib.import_module(SUBCOMMANDS[name][0])
+    return int(module.main(rest, prog=f"{prog} {name}") or 0)
