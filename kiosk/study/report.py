@@ -1,0 +1,192 @@
+"""`vtkiosk study report`: what a researcher publishes from a study log.
+
+Per comparison (reference vs each other condition, test trials only; warm-up is never analysed and timeouts are
+counted but are not choices): the preference rate for the reference with a Wilson 95 % interval, the exact two-sided
+binomial test against 50 %, n; breakdowns per garment and per participant; a participant-clustered interval
+(CR1 sandwich) and a percentile bootstrap over participants (fixed seed), because one participant answers many
+trials; Bradley-Terry strengths when more than two conditions were compared; and a bar chart like the paper's
+haptic user-study figure (preference for the reference against each baseline, intervals, the 50 % chance line).
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Iterable
+
+from kiosk.errors import KioskError
+from kiosk.study.log import LogRead, LogState, load_state
+from kiosk.study.stats import (binom_test_two_sided, bootstrap_interval, bradley_terry, cluster_robust_interval,
+                               wilson_interval)
+
+
+class StudyReportError(KioskError):
+    """A report that cannot be produced (no data, plotting unavailable)."""
+
+
+def _counts(rows: Iterable[dict]) -> dict:
+    rows = list(rows)
+    answered = [r for r in rows if not r["timeout"]]
+    n = len(answered)
+    k = sum(1 for r in answered if r["chose_reference"])
+    lo, hi = wilson_interval(k, n)
+    return {"n": n, "wins": k, "rate": (k / n) if n else None, "wilson95": [lo, hi],
+            "p_value": binom_test_two_sided(k, n), "timeouts": len(rows) - n}
+
+
+def _by(rows: list[dict], key: str) -> list[dict]:
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        groups[str(r[key])].append(r)
+    return [{key: name, **_counts(g)} for name, g in sorted(groups.items())]
+
+
+def _clustered(rows: list[dict], *, resamples: int, seed: int) -> tuple[dict, dict]:
+    per: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+    for r in rows:
+        if not r["timeout"]:
+            per[r["participant"]][0] += int(bool(r["chose_reference"]))
+            per[r["participant"]][1] += 1
+    names = sorted(per)
+    wins, counts = [per[p][0] for p in names], [per[p][1] for p in names]
+    cr = cluster_robust_interval(wins, counts)
+    cr["method"] = "ratio estimator with CR1 cluster-robust variance over participants"
+    return cr, bootstrap_interval(wins, counts, resamples=resamples, seed=seed)
+
+
+def analyse(state: LogState, read: LogRead | None = None, *, resamples: int = 10000, seed: int = 0) -> dict:
+    """The full report as a JSON-ready dict."""
+    responses = state.responses()
+    test = [r for r in responses if r["block"] == "test"]
+    if not test:
+        raise StudyReportError("the log has no answered test trials yet (warm-up trials are not analysed)")
+    reference = test[0]["reference"]
+    if any(r["reference"] != reference for r in test):
+        raise StudyReportError("the log mixes reference conditions; one report per reference")
+    comparisons = []
+    for baseline in sorted({r["comparison"] for r in test}):
+        rows = [r for r in test if r["comparison"] == baseline]
+        cr, boot = _clustered(rows, resamples=resamples, seed=seed)
+        comparisons.append({"reference": reference, "baseline": baseline, **_counts(rows), "clustered": cr,
+                            "bootstrap": boot, "by_garment": _by(rows, "garment"),
+                            "by_participant": _by(rows, "participant")})
+    cr, boot = _clustered(test, resamples=resamples, seed=seed)
+    overall = {**_counts(test), "clustered": cr, "bootstrap": boot, "by_garment": _by(test, "garment"),
+               "by_participant": _by(test, "participant")}
+    bt = None
+    conditions = {reference} | {c["baseline"] for c in comparisons}
+    if len(conditions) > 2:
+        wins: dict[tuple[str, str], int] = defaultdict(int)
+        for r in test:
+            if r["timeout"]:
+                continue
+            other = r["comparison"]
+            pair = (reference, other) if r["chose_reference"] else (other, reference)
+            wins[pair] += 1
+        for c in conditions:  # a condition with no answered trial still gets a (prior-only) score
+            wins.setdefault((c, c), 0)
+        strengths = bradley_terry(wins)
+        ref_s = strengths[reference]
+        bt = {"method": "Bradley-Terry by MM (Hunter 2004), prior: 0.5 virtual win + 0.5 virtual loss per condition "
+                        "against a unit-strength opponent",
+              "scores": [{"condition": c, "strength": s, "log_strength_vs_reference": math.log(s / ref_s),
+                          "p_beats_reference": s / (s + ref_s)}
+                         for c, s in sorted(strengths.items(), key=lambda kv: -kv[1])]}
+    sessions = list(state.sessions.values())
+    health = {"records": len(read.records) if read else None,
+              "problems": [{"line": p.line, "offset": p.offset, "reason": p.reason} for p in read.problems] if read
+              else [], "torn_tail": bool(read and read.torn_tail),
+              "duplicate_responses_ignored": sum(len(s.duplicates) for s in sessions)}
+    return {"study_id": state.study_id, "reference": reference, "log_health": health,
+            "participants": len({s.participant for s in sessions}), "sessions": len(sessions),
+            "complete_sessions": sum(1 for s in sessions if s.next_trial() is None),
+            "warmup_responses": sum(1 for r in responses if r["block"] == "warmup"),
+            "comparisons": comparisons, "overall": overall, "bradley_terry": bt}
+
+
+def _pct(x: float | None) -> str:
+    return "   -  " if x is None else f"{100 * x:5.1f}%"
+
+
+def _ci(ci: list[float] | None) -> str:
+    return "-" if not ci else f"[{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+
+def format_text(rep: dict) -> str:
+    """The report as a plain-text table for the terminal."""
+    lines = [f"study {rep['study_id']}: {rep['participants']} participant(s), {rep['sessions']} session(s) "
+             f"({rep['complete_sessions']} complete), reference {rep['reference']!r}",
+             f"log: {rep['log_health']['records']} valid records, {len(rep['log_health']['problems'])} problem(s), "
+             f"{rep['log_health']['duplicate_responses_ignored']} duplicate response(s) ignored; "
+             f"{rep['warmup_responses']} warm-up response(s) not analysed", "",
+             f"{'comparison':<28} {'n':>4} {'prefer':>7}  {'Wilson 95%':<14} {'p (exact)':>10}  "
+             f"{'clustered 95%':<14} {'bootstrap 95%':<14} {'timeouts':>8}"]
+    rows = [(f"{rep['reference']} vs {c['baseline']}", c) for c in rep["comparisons"]] + [("all", rep["overall"])]
+    for name, c in rows:
+        lines.append(f"{name:<28} {c['n']:>4} {_pct(c['rate']):>7}  {_ci(c['wilson95']):<14} {c['p_value']:>10.3g}  "
+                     f"{_ci(c['clustered']['ci95']):<14} {_ci(c['bootstrap']['ci95']):<14} {c['timeouts']:>8}")
+    for title, key in (("per garment", "by_garment"), ("per participant", "by_participant")):
+        lines += ["", f"{title} (all comparisons):"]
+        label = key.split("_", 1)[1]
+        for g in rep["overall"][key]:
+            lines.append(f"  {g[label]:<26} {g['n']:>4} {_pct(g['rate']):>7}  {_ci(g['wilson95']):<14} "
+                         f"{g['p_value']:>10.3g}")
+    if rep["bradley_terry"]:
+        lines += ["", "Bradley-Terry (strength relative to the reference; P = chance to be preferred over it):"]
+        for s in rep["bradley_terry"]["scores"]:
+            lines.append(f"  {s['condition']:<26} log-strength {s['log_strength_vs_reference']:+.3f}  "
+                         f"P {s['p_beats_reference']:.3f}")
+    lines += ["", "clustered = CR1 cluster-robust over participants; bootstrap = percentile, resampling participants "
+                  f"(B={rep['overall']['bootstrap']['resamples']}, seed={rep['overall']['bootstrap']['seed']})"]
+    return "\n".join(lines)
+
+
+def plot(rep: dict, out: Path, *, title: str | None = None) -> Path:
+    """Bar chart of the reference's preference rate against each baseline (Wilson 95 %), with the 50 % line."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise StudyReportError("the plot needs matplotlib, which is not installed here (pip install matplotlib); "
+                               "the numbers are in the text/JSON report") from None
+    comps = rep["comparisons"]
+    labels = [c["baseline"] for c in comps]
+    rates = [100 * (c["rate"] or 0.0) for c in comps]
+    lo = [100 * ((c["rate"] or 0.0) - c["wilson95"][0]) for c in comps]
+    hi = [100 * (c["wilson95"][1] - (c["rate"] or 0.0)) for c in comps]
+    fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(comps), 3.6), dpi=150)
+    bars = ax.bar(range(len(comps)), rates, color="#4C72B0", width=0.6, yerr=[lo, hi], capsize=4,
+                  error_kw={"elinewidth": 1.2, "ecolor": "#222222"})
+    ax.axhline(50, color="#C44E52", linestyle="--", linewidth=1.2, label="chance (50%)")
+    for b, c in zip(bars, comps):
+        ax.text(b.get_x() + b.get_width() / 2, 2, f"n={c['n']}", ha="center", va="bottom", fontsize=7, color="white")
+        ax.text(b.get_x() + b.get_width() / 2, min(100 * c["wilson95"][1] + 1.5, 101), f"{100 * (c['rate'] or 0):.1f}%",
+                ha="center", va="bottom", fontsize=8)
+    ax.set_xticks(range(len(comps)), [f"vs {name}" for name in labels], fontsize=8)
+    ax.set_ylim(0, 108)
+    ax.set_ylabel(f"prefer {rep['reference']} (%)")
+    ax.set_title(title or f"Haptic preference for {rep['reference']} ({rep['participants']} participants)",
+                 fontsize=9)
+    ax.legend(loc="lower right", fontsize=7, frameon=False)
+    ax.spines[["top", "right"]].set_visible(False)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def report_log(path: Path, *, resamples: int = 10000, seed: int = 0) -> dict:
+    state, read = load_state(path)
+    rep = analyse(state, read, resamples=resamples, seed=seed)
+    rep["log"] = str(path)
+    return rep
+
+
+def write_json(rep: dict, out: Path) -> None:
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(rep, indent=2, sort_keys=False) + "\n")
