@@ -242,30 +242,36 @@ def grid_for(box: tuple[float, float], cap: tuple[int, int]) -> tuple[tuple[int,
     return best[2], -best[1]
 
 
-def place_region(center: tuple[float, float], size: tuple[int, int], clip: Rect) -> Rect:
-    """A region of `size` centred on `center`, shifted to lie inside `clip` where it fits."""
-    w, h = size
-    x = center[0] - w / 2.0
-    y = center[1] - h / 2.0
-    cx, cy, cw, ch = clip
-    if w <= cw:
-        x = min(max(x, cx), cx + cw - w)
-    if h <= ch:
-        y = min(max(y, cy), cy + ch - h)
-    return (int(round(x)), int(round(y)), int(w), int(h))
+def place_region(box: tuple[float, float, float, float], size: tuple[int, int], clip: Rect) -> Rect:
+    """A region of `size` that covers `box` (x0, y0, x1, y1), centred on it, shifted towards the inside of `clip`
+    as far as it still covers the box (computed pixels then show on screen)."""
+    out = []
+    for lo, hi, n, c0, cn in ((box[0], box[2], size[0], clip[0], clip[2]), (box[1], box[3], size[1], clip[1], clip[3])):
+        v = (lo + hi) / 2.0 - n / 2.0
+        cover_lo, cover_hi = hi - n, lo          # positions that still cover [lo, hi]
+        inside_lo, inside_hi = c0, c0 + cn - n   # positions inside the clip
+        a, b = max(cover_lo, inside_lo), min(cover_hi, inside_hi)
+        if a <= b:
+            v = min(max(v, a), b)
+        out.append(int(round(v)))
+    return (out[0], out[1], int(size[0]), int(size[1]))
 
 
 def reference_placement(panel: Panel, asset_size: tuple[int, int], bbox: Rect) -> Placement:
     """Lay the garment's reference assets into the panel: the object's bounding box (or its left/right half)
-    scaled to fill REFERENCE_FILL of the panel, centred."""
+    scaled to fill REFERENCE_FILL of the panel, centred; a half is cut at the garment's centre line, which is put
+    on the panel's inner edge (left half: right edge), so two half panels side by side show one garment."""
     bx, by, bw, bh = bbox
-    if panel.half == "left":
-        bw = bw / 2.0
-    elif panel.half == "right":
-        bx, bw = bx + bw / 2.0, bw / 2.0
+    half_w = bw / 2.0 if panel.half in ("left", "right") else bw
     px, py, pw, ph = panel.rect
-    s = REFERENCE_FILL * min(pw / max(bw, 1.0), ph / max(bh, 1.0))
-    x = px + pw / 2.0 - (bx + bw / 2.0) * s
+    s = REFERENCE_FILL * min(pw / max(half_w, 1.0), ph / max(bh, 1.0))
+    centre_line = bx + bw / 2.0
+    if panel.half == "left":
+        x = px + pw - centre_line * s
+    elif panel.half == "right":
+        x = px - centre_line * s
+    else:
+        x = px + pw / 2.0 - centre_line * s
     y = py + ph / 2.0 - (by + bh / 2.0) * s
     return Placement(s, x, y, asset_size)
 
@@ -383,9 +389,15 @@ class Planner:
         if clip[2] == 0 or clip[3] == 0:
             pp.reason = "the panel is off screen"
             return pp
-        # 1. The object's bounding box, on a coarse raster of the panel.
-        k = min(1.0, PLAN_SIDE / max(pw, ph))
-        coarse = Transform(px, py, k, k, (max(1, math.ceil(pw * k)), max(1, math.ceil(ph * k))))
+        # 1. The object's bounding box, on a coarse raster of the panel (and of the whole reference garment when
+        #    the panel shows only part of it, so its outline stays closed).
+        ax, ay, aw, ah = px, py, pw, ph
+        if placement is not None and sketch.base:
+            qx, qy, qw, qh = placement.rect
+            ax, ay = min(px, qx), min(py, qy)
+            aw, ah = max(px + pw, qx + qw) - ax, max(py + ph, qy + qh) - ay
+        k = min(1.0, PLAN_SIDE / max(aw, ah))
+        coarse = Transform(ax, ay, k, k, (max(1, math.ceil(aw * k)), max(1, math.ceil(ah * k))))
         t1 = time.perf_counter()
         raster = render_sketch(sketch, coarse, base, placement, width_px=1)
         t2 = time.perf_counter()
@@ -398,13 +410,13 @@ class Planner:
             acc.plan_ms += 1e3 * (time.perf_counter() - t0 - (t2 - t1))
             return pp
         m = self.margin_px
-        x0, y0 = px + box[0] / k - m, py + box[1] / k - m
-        x1, y1 = px + box[2] / k + m, py + box[3] / k + m
+        x0, y0 = ax + box[0] / k - m, ay + box[1] / k - m
+        x1, y1 = ax + box[2] / k + m, ay + box[3] / k + m
         # 2. Graph: what is needed and not cached. 3. Grid and region.
         kind0 = choose_graph(needs, bundle.graphs())
         grid, scale = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, preview))
         rw, rh = round(grid[0] / scale), round(grid[1] / scale)
-        region = place_region(((x0 + x1) / 2, (y0 + y1) / 2), (rw, rh), clip)
+        region = place_region((x0, y0, x1, y1), (rw, rh), clip)
         t = Transform(region[0], region[1], grid[0] / rw, grid[1] / rh, grid)
         t3 = time.perf_counter()
         net_sketch = render_sketch(sketch, t, base, placement)
@@ -413,8 +425,8 @@ class Planner:
         mask = object_mask(net_sketch, max_gap_px=max(3, round(GAP_FRACTION * min(pw, ph) * t.kx)))
         if not mask.any():
             # The coarse raster closed the outline, the fine one did not: use the coarse mask at the grid.
-            warp = np.array([[t.kx / k, 0, (px - region[0]) * t.kx],
-                             [0, t.ky / k, (py - region[1]) * t.ky]], np.float64)
+            warp = np.array([[t.kx / k, 0, (ax - region[0]) * t.kx],
+                             [0, t.ky / k, (ay - region[1]) * t.ky]], np.float64)
             mask = cv2.warpAffine(coarse_mask.astype(np.uint8) * 255, warp, grid, flags=cv2.INTER_LINEAR) >= 128
         key = content_key(bundle.key, grid, net_sketch, mask)
         reused = tuple(mod for mod in needs if self.cached(key, mod))

@@ -1,0 +1,60 @@
+"""Helpers for tests that run a real kiosk daemon: real bundles (tests/kiosk/bundle_factory.py), the in-process
+emulated haptic device, real HTTP on 127.0.0.1."""
+from __future__ import annotations
+
+import json
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+from kiosk.config import config_from_mapping
+from kiosk.daemon import KioskDaemon, parse_frame
+
+BOX = [[[300, 200], [800, 200], [800, 600], [300, 600], [300, 200]]]
+
+
+def daemon_config(bundles: list[Path], trusted: Path, **sections):
+    doc = {"server": {"port": 0}, "bundles": [str(b) for b in bundles], "store": {"trusted_keys": str(trusted)},
+           "device": {"type": "emulated", "report_size": 1024, "heartbeat_interval_s": 0.05,
+                      "reconnect_interval_s": 0.05},
+           "health": {"stale_after_s": 1.0, "interval_s": 0.1}, "debug": {"fault_injection": True}}
+    for k, v in sections.items():
+        doc[k] = {**doc.get(k, {}), **v} if isinstance(v, dict) else v
+    return config_from_mapping(doc)
+
+
+def start_daemon(bundles: list[Path], trusted: Path, **sections) -> KioskDaemon:
+    d = KioskDaemon(daemon_config(bundles, trusted, **sections))
+    d.start()
+    return d
+
+
+def http(url: str, body: object | None = None, *, raw: bytes | None = None, timeout: float = 30.0,
+         headers: dict | None = None) -> tuple[int, bytes, str]:
+    data = raw if raw is not None else (json.dumps(body).encode() if body is not None else None)
+    req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json", **(headers or {})})
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as r:
+            return r.status, r.read(), r.headers.get("Content-Type", "")
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), e.headers.get("Content-Type", "")
+
+
+def render(d: KioskDaemon, strokes=BOX, *, garment="denim-shorts", mode="final", panel=(0, 0, 1280, 800),
+           base=False, client="test"):
+    body = {"garment": garment, "panel": dict(zip("xywh", panel)), "screen": [1280, 800], "strokes": strokes,
+            "base": base, "mode": mode, "client": client}
+    status, data, _ = http(d.server.url + "api/render", body)
+    if status != 200:
+        return status, json.loads(data), {}
+    return status, *parse_frame(data)
+
+
+def wait_for(cond, timeout: float = 5.0, step: float = 0.02) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(step)
+    return cond()
