@@ -91,6 +91,7 @@ class StudyConfig:
     allow_unsigned: bool = False
     kiosk: Path | dict | None = None         # the daemon config: a YAML path or an inline mapping
     source_sha256: str = ""                  # of the config file's bytes, written into the log
+    base_dir: Path = Path(".")               # the config file's folder (relative paths start there)
 
     @property
     def test_pool(self) -> tuple[str, ...]:
@@ -235,7 +236,7 @@ def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "") -> Stud
         id=study_id, seed=seed, reference=reference, conditions=conditions, garments=garments, warmup_garment=warmup,
         participants=_participants(doc["participants"]), log=_path(doc["log"], "log", base), comparisons=comparisons,
         question=question.strip(), test_garments=n_test, warmup_trials=warmup_trials, time_limit_s=float(limit),
-        trusted_keys=trusted, allow_unsigned=allow_unsigned, kiosk=kiosk, source_sha256=source_sha256)
+        trusted_keys=trusted, allow_unsigned=allow_unsigned, kiosk=kiosk, source_sha256=source_sha256, base_dir=base)
 
 
 def load_study_config(path: str | Path) -> StudyConfig:

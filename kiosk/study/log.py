@@ -169,7 +169,7 @@ class SessionState:
     started: dict                                   # the 'session' record (holds the full schedule)
     responses: dict[int, dict] = field(default_factory=dict)   # trial index -> first 'response' record
     duplicates: list[dict] = field(default_factory=list)       # later responses for an answered trial (never counted)
-    ended: bool = False
+    ended: bool = False                             # an 'end' record (complete or stopped) not followed by 'resume'
 
     @property
     def n_trials(self) -> int:
@@ -219,9 +219,9 @@ def replay(records: Iterable[dict]) -> LogState:
                 s.duplicates.append(rec)
             else:
                 s.responses[rec["trial"]] = rec
-        elif kind == "end":
+        elif kind in ("end", "resume"):
             if key in state.sessions:
-                state.sessions[key].ended = True
+                state.sessions[key].ended = kind == "end"
         elif kind == "event":
             state.events.append(rec)
     return state
@@ -348,8 +348,8 @@ class StudyLog:
             self.state.sessions.setdefault(key, SessionState(participant=key[0], session=key[1], started=rec))
         elif kind == "response":
             self.state.sessions[key].responses.setdefault(rec["trial"], rec)
-        elif kind == "end" and key in self.state.sessions:
-            self.state.sessions[key].ended = True
+        elif kind in ("end", "resume") and key in self.state.sessions:
+            self.state.sessions[key].ended = kind == "end"
         elif kind == "event":
             self.state.events.append(rec)
 

@@ -1,0 +1,74 @@
+"""Real, tiny study bundles: per (condition, garment) a signed bundle whose tactile graph is a known gain times the
+sketch, so each condition's friction map is different and predictable. Built with the exporter's real writer and
+the shared test assets (tests/kiosk/bundle_factory.py); graphs are real ONNX models run by ONNX Runtime."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import onnx
+from onnx import TensorProto, helper
+
+from exporter.bundle_writer import write_bundle
+from exporter.keys import generate_keypair, load_private_key
+from tests.kiosk.bundle_factory import base_manifest, make_assets
+
+GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "abl": 0.08}
+
+
+def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
+    """visual = tanh(concat(sketch, mask, sketch)) * mask; tactile = gain * concat(sketch, -sketch) * mask."""
+    dims = [1, 1, "H", "W"]
+    inputs = [helper.make_tensor_value_info("sketch", TensorProto.FLOAT, dims),
+              helper.make_tensor_value_info("mask", TensorProto.FLOAT, dims)]
+    nodes = [helper.make_node("Constant", [], ["k"], value=helper.make_tensor("k", TensorProto.FLOAT, [], [gain]))]
+    outs = []
+    if "visual" in outputs:
+        nodes += [helper.make_node("Concat", ["sketch", "mask", "sketch"], ["v3"], axis=1),
+                  helper.make_node("Tanh", ["v3"], ["vt"]), helper.make_node("Mul", ["vt", "mask"], ["visual"])]
+        outs.append(helper.make_tensor_value_info("visual", TensorProto.FLOAT, [1, 3, "H", "W"]))
+    if "tactile" in outputs:
+        nodes += [helper.make_node("Neg", ["sketch"], ["neg"]),
+                  helper.make_node("Concat", ["sketch", "neg"], ["t2"], axis=1),
+                  helper.make_node("Mul", ["t2", "k"], ["t3"]), helper.make_node("Mul", ["t3", "mask"], ["tactile"])]
+        outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
+    model = helper.make_model(helper.make_graph(nodes, "gain", inputs, outs),
+                              opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def make_study_bundles(root: Path, conditions: list[str], garments: list[str], *,
+                       drop_asset: tuple[str, str, str] | None = None) -> Path:
+    """Write root/bundles/<condition>/<garment>.vtb for every pair; return the trusted-keys folder.
+
+    drop_asset=(condition, garment, asset) leaves that reference asset out of that one bundle (a bad-input test).
+    """
+    keys = root / "keys"
+    if not (keys / "operator.key").exists():
+        generate_keypair(keys, "operator")
+    key = load_private_key(keys / "operator.key")
+    trusted = root / "trusted"
+    trusted.mkdir(exist_ok=True)
+    (trusted / "operator.pub").write_bytes((keys / "operator.pub").read_bytes())
+    work = root / "src"
+    assets = {f"assets/{k}.png": p for k, p in make_assets(work / "assets").items()}
+    for cond in conditions:
+        gdir = work / cond
+        gdir.mkdir(parents=True, exist_ok=True)
+        graphs = {f"graphs/{kind}.onnx": gain_graph(gdir / f"{kind}.onnx", outs, GAINS[cond])
+                  for kind, outs in (("full", ["visual", "tactile"]), ("tactile", ["tactile"]),
+                                     ("visual", ["visual"]))}
+        for garment in garments:
+            names = {"sketch": "assets/sketch.png", "mask": "assets/mask.png", "visual": "assets/visual.png"}
+            sources = {**graphs, **assets}
+            if drop_asset is not None and drop_asset[:2] == (cond, garment):
+                del names[drop_asset[2]]
+                del sources[f"assets/{drop_asset[2]}.png"]
+            manifest = base_manifest(garment_id=garment, display_name=garment, method=cond,
+                                     model_version=f"2026.1-{cond}", assets=names)
+            out = root / "bundles" / cond / f"{garment}.vtb"
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_bundle(out, manifest, sources, signing_key=key)
+    return trusted
