@@ -20,11 +20,20 @@ def psnr(a: np.ndarray, b: np.ndarray, *, peak: float = 2.0) -> float:
 def compare_sessions(ref: ort.InferenceSession, test: ort.InferenceSession, outputs: list[str],
                      inputs: Sequence[NetworkInput], friction_scale: float) -> dict[str, float]:
     """Mean over `inputs` of each error; the worst friction-map error is reported too."""
+    return compare_outputs(reference_outputs(ref, outputs, inputs), test, outputs, inputs, friction_scale)
+
+
+def reference_outputs(ref, outputs: list[str], inputs: Sequence[NetworkInput]) -> list[dict[str, np.ndarray]]:
+    """The reference's outputs for each input, computed once (the benchmark compares many graphs against them)."""
+    return [dict(zip(outputs, ref.run(outputs, {"sketch": x.sketch, "mask": x.mask}))) for x in inputs]
+
+
+def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: list[str],
+                    inputs: Sequence[NetworkInput], friction_scale: float) -> dict[str, float]:
+    """Like `compare_sessions` with the reference outputs given; `test` is anything with ORT's `run(names, feed)`."""
     vis, tac, fric, fric_max = [], [], [], 0.0
-    for x in inputs:
-        feed = {"sketch": x.sketch, "mask": x.mask}
-        a = dict(zip(outputs, ref.run(outputs, feed)))
-        b = dict(zip(outputs, test.run(outputs, feed)))
+    for a, x in zip(reference, inputs):
+        b = dict(zip(outputs, test.run(outputs, {"sketch": x.sketch, "mask": x.mask})))
         if "visual" in a:
             vis.append(psnr(a["visual"], b["visual"]))
         if "tactile" in a:

@@ -60,3 +60,18 @@ def sketch_variants(sketch: np.ndarray, sizes: list[tuple[int, int]], *, per_siz
             s = base if k == 0 else (_augment(base, rng) if k % 2 else _stroke_edit(_augment(base, rng), rng))
             inputs.append(network_input(s, object_mask(s)))
     return inputs
+
+
+HELD_OUT_SEED = 1000  # added to the calibration seed: errors are measured on sketches int8 was not calibrated on
+
+
+def calibration_set(sketch: np.ndarray, sizes: list[tuple[int, int]], per_size: int, seed: int = 0
+                    ) -> list[NetworkInput]:
+    """int8 calibration sketches: the garment's own and its variants at every size the kiosk may run."""
+    return sketch_variants(sketch, sizes, per_size=per_size, seed=seed)
+
+
+def held_out_set(sketch: np.ndarray, sizes: list[tuple[int, int]], per_size: int, seed: int = 0
+                 ) -> list[NetworkInput]:
+    """Sketches for measuring error against fp32 (exporter and benchmark use the same ones)."""
+    return sketch_variants(sketch, sizes, per_size=per_size, seed=seed + HELD_OUT_SEED)

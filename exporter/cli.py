@@ -17,6 +17,15 @@ def _sizes(text: str) -> list[tuple[int, int]]:
     return out
 
 
+def _islands(text: str) -> tuple[str, ...]:
+    from exporter.quantize import FP32_ISLANDS
+    parts = tuple(t.strip() for t in text.split(",") if t.strip() and t.strip() != "none")
+    bad = [t for t in parts if t not in FP32_ISLANDS]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown part(s) {', '.join(bad)}; choose from {', '.join(FP32_ISLANDS)}")
+    return parts
+
+
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__)
     p.add_argument("--run", type=Path, required=True, help="a training run folder (vtkiosk train --out)")
@@ -28,6 +37,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--sign-key", type=Path, default=None, help="Ed25519 private key (vtkiosk keys generate)")
     p.add_argument("--which", choices=("best", "latest"), default="best")
     p.add_argument("--calibration", choices=("minmax", "percentile", "entropy"), default="minmax")
+    p.add_argument("--int8-fp32", type=_islands, default=None, metavar="PARTS",
+                   help="int8 only: graph parts kept in fp32, comma-separated from "
+                        "pe,first-conv,heads,tactile-branch, or 'none' (default pe,first-conv,heads)")
     p.add_argument("--max-friction-mae", type=float, default=1.0,
                    help="refuse an int8 graph whose friction-map error exceeds this many levels (default 1)")
     p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
@@ -45,6 +57,8 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
                        force=args.force, model_version=args.model_version, display_name=args.display_name)
+    if args.int8_fp32 is not None:
+        cfg.fp32_islands = args.int8_fp32
     report = export_run(args.run, args.out, cfg, signing_key=key)
     m = report.manifest
     print(f"wrote {report.out}: {m.garment_id} {m.model_version}, {len(m.graphs)} graphs at {args.precision}, "

@@ -19,9 +19,9 @@ import yaml
 import exporter
 from exporter.accuracy import compare_sessions
 from exporter.bundle_writer import write_bundle
-from exporter.calibration import sketch_variants
+from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
-from exporter.quantize import convert_fp16, quantize_int8
+from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.errors import KioskError
 from kiosk.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
@@ -40,6 +40,7 @@ class ExportConfig:
     calibration_per_size: int = 8
     error_per_size: int = 4
     calibration_method: str = "minmax"
+    fp32_islands: tuple[str, ...] = DEFAULT_FP32_ISLANDS   # int8 only: parts kept in fp32 (exporter/quantize.py)
     max_friction_mae: float = 1.0      # uint8 levels; int8 graphs above this are refused unless forced
     force: bool = False
     which: str = "best"
@@ -55,6 +56,24 @@ class ExportReport:
     parity: dict[str, float]
     errors: dict[str, dict[str, float]]
     out: Path
+
+
+def rewrites_conv_transpose(precision: str) -> bool:
+    """Only int8 graphs get the ConvTranspose -> Conv3x3 + DepthToSpace rewrite: it is what lets the decoder run
+    int8 at all, but it costs 2.25x the multiply-adds, so fp32/fp16 keep ONNX Runtime's own ConvTranspose (measured
+    faster on CPU: docs/performance.md)."""
+    return precision == "int8"
+
+
+def lower_precision(fp32: Path, precision: str, dst_dir: Path, calibration, cfg: ExportConfig) -> Path:
+    """The graph at `precision` made from the fp32 graph `fp32` (returned as is for fp32)."""
+    stem = Path(fp32).name.split(".")[0]
+    if precision == "int8":
+        return quantize_int8(fp32, Path(dst_dir) / f"{stem}.int8.onnx", calibration, method=cfg.calibration_method,
+                             fp32_islands=cfg.fp32_islands)
+    if precision == "fp16":
+        return convert_fp16(fp32, Path(dst_dir) / f"{stem}.fp16.onnx")
+    return Path(fp32)
 
 
 def _sha256(path: Path) -> str:
@@ -84,6 +103,16 @@ def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
     return paths
 
 
+def _recipe(cfg: ExportConfig) -> dict[str, str]:
+    """How the graphs were made, in the manifest's provenance (the benchmark rebuilds other precisions the same way)."""
+    out = {"rewrite": "ConvTranspose(4,2,1) -> Conv3x3 + DepthToSpace" if rewrites_conv_transpose(cfg.precision)
+           else "none"}
+    if cfg.precision == "int8":
+        out["calibration"] = f"{cfg.calibration_method}, {cfg.calibration_per_size} sketches per size"
+        out["int8_fp32_islands"] = ",".join(cfg.fp32_islands) or "none"
+    return out
+
+
 def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None, progress=print) -> ExportReport:
     """Export, measure, refuse or write. Raises ExportError/CheckpointError with an operator-facing message."""
     from trainer.checkpoint import load_generator
@@ -111,24 +140,21 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         tmp = Path(tmp_s)
         assets = _reference_assets(garment_dir, tmp / "assets")
         sketch = cv2.imread(str(assets["sketch"]), cv2.IMREAD_GRAYSCALE)
-        calibration = sketch_variants(sketch, cfg.sizes, per_size=cfg.calibration_per_size, seed=cfg.seed)
-        held_out = sketch_variants(sketch, cfg.sizes, per_size=cfg.error_per_size, seed=cfg.seed + 1000)
+        calibration = calibration_set(sketch, cfg.sizes, cfg.calibration_per_size, cfg.seed)
+        held_out = held_out_set(sketch, cfg.sizes, cfg.error_per_size, cfg.seed)
         sources: dict[str, Path] = {f"assets/{k}.png": p for k, p in assets.items()}
         graphs: dict[str, GraphSpec] = {}
         parities: dict[str, float] = {}
         errors: dict[str, dict[str, float]] = {}
         for kind in cfg.graphs:
-            fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0])
+            fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0],
+                                rewrite=rewrites_conv_transpose(cfg.precision))
             parities[kind] = parity(generator, kind, fp32, [(x.sketch, x.mask) for x in held_out[:2]])
             progress(f"export: {kind} graph fp32, max |ONNX - PyTorch| = {parities[kind]:.2e}")
             if parities[kind] > PARITY_BOUND:
                 raise ExportError(f"{kind} graph differs from PyTorch by {parities[kind]:.2e} (> {PARITY_BOUND}); "
                                   "the export is wrong")
-            path = fp32
-            if cfg.precision == "int8":
-                path = quantize_int8(fp32, tmp / f"{kind}.int8.onnx", calibration, method=cfg.calibration_method)
-            elif cfg.precision == "fp16":
-                path = convert_fp16(fp32, tmp / f"{kind}.fp16.onnx")
+            path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg)
             if cfg.precision != "fp32":
                 err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale)
                 errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
@@ -171,8 +197,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             metrics=metrics,
             errors={**errors, "fp32": {f"{k}_onnx_vs_torch_max_abs": v for k, v in parities.items()}},
             provenance={"host": socket.gethostname(), "python": platform.python_version(),
-                        "checkpoint": ck_path.name, "calibration": f"{cfg.calibration_method}, "
-                        f"{cfg.calibration_per_size} sketches per size",
+                        "checkpoint": ck_path.name, **_recipe(cfg),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
         written = write_bundle(out, manifest, sources, signing_key=signing_key)

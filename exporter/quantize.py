@@ -2,11 +2,22 @@
 
 int8 targets the CPU kiosk. fp16 targets GPU execution providers; on the CPU provider it mostly halves the file
 (ORT runs many fp16 ops through casts), which the benchmark shows rather than assumes.
+
+int8 keeps a few parts of the graph in fp32 ("fp32 islands"), because measuring each part's contribution showed
+where 8-bit activations lose what the kiosk needs (docs/performance.md, "int8 accuracy"):
+- `pe`: the positional-encoding subgraph. Quantizing it quantizes the pixel index (1..W) itself, so sin(p) is
+  evaluated at p rounded to steps of W/128 pixels: garbage, and worse the larger the input (this alone was most of
+  the error, 31 dB -> 50 dB visual PSNR at 1536 px when kept fp32).
+- `first-conv`: the first convolution, whose input holds the slow PE channels (sin(1e-4 p) spans ~0.05 of a
+  [-1, 1] range, i.e. a few 8-bit steps).
+- `heads`: each output's last convolution, tanh and mask multiply: 8-bit steps of the tanh output are visible in
+  the friction map, which amplifies small slopes (log of the squared slope).
+- `tactile-branch`: the whole tactile decoder branch (optional; halves the friction-map error again, costs speed).
 """
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import onnx
@@ -17,6 +28,11 @@ from onnxruntime.transformers.float16 import convert_float_to_float16
 
 from kiosk.sketch import NetworkInput
 
+FP32_ISLANDS = ("pe", "first-conv", "heads", "tactile-branch")
+DEFAULT_FP32_ISLANDS = ("pe", "first-conv", "heads")
+CALIBRATION_METHODS = {"minmax": CalibrationMethod.MinMax, "percentile": CalibrationMethod.Percentile,
+                       "entropy": CalibrationMethod.Entropy}
+
 
 class _Reader(CalibrationDataReader):
     def __init__(self, inputs: Sequence[NetworkInput]):
@@ -26,24 +42,85 @@ class _Reader(CalibrationDataReader):
         return next(self._it, None)
 
 
-def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *,
-                  method: str = "minmax") -> Path:
-    """Static QDQ int8: uint8 activations, int8 per-channel weights, ranges from `calibration` sketches."""
+def _ancestors(graph: onnx.GraphProto, tensor: str) -> list[str]:
+    """Names of the nodes that (transitively) produce `tensor`."""
+    producer = {out: node for node in graph.node for out in node.output}
+    seen: dict[str, None] = {}
+    stack = [tensor]
+    while stack:
+        node = producer.get(stack.pop())
+        if node is None or node.name in seen:
+            continue
+        seen[node.name] = None
+        stack.extend(node.input)
+    return list(seen)
+
+
+def _head(graph: onnx.GraphProto, output: str) -> list[str]:
+    """The nodes from a graph output back to (and including) the nearest Conv: Mul(mask), Tanh, DepthToSpace, Conv."""
+    producer = {out: node for node in graph.node for out in node.output}
+    inputs = {i.name for i in graph.input} | {i.name for i in graph.initializer}
+    names, tensor = [], output
+    while tensor in producer:
+        node = producer[tensor]
+        names.append(node.name)
+        if node.op_type in ("Conv", "ConvTranspose"):
+            return names
+        data = [t for t in node.input if t and t not in inputs and t in producer]
+        if not data:
+            break
+        tensor = data[0]
+    raise ValueError(f"no convolution found behind output {output!r}; is this a vtkiosk generator graph?")
+
+
+def fp32_island_nodes(model: onnx.ModelProto, islands: Iterable[str]) -> list[str]:
+    """Node names to leave in fp32 for the named islands (see the module docstring), found from the graph's
+    structure (the PE subgraph is everything the first Conv's input depends on; a head is the chain from an output
+    back to its last Conv), except `tactile-branch`, which is the exported module path `/tactile/`."""
+    islands = list(islands)
+    unknown = sorted(set(islands) - set(FP32_ISLANDS))
+    if unknown:
+        raise ValueError(f"unknown fp32 island(s) {', '.join(unknown)}; known: {', '.join(FP32_ISLANDS)}")
+    graph = model.graph
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    if not convs:
+        raise ValueError("the graph has no convolution")
+    first = convs[0]
+    names: dict[str, None] = {}
+    if "pe" in islands:
+        names.update(dict.fromkeys(_ancestors(graph, first.input[0])))
+    if "first-conv" in islands:
+        names[first.name] = None
+    if "heads" in islands:
+        for out in graph.output:
+            names.update(dict.fromkeys(_head(graph, out.name)))
+    if "tactile-branch" in islands:
+        outs = [o.name for o in graph.output if o.name == "tactile"]
+        names.update(dict.fromkeys(n.name for n in graph.node if "/tactile/" in n.name))
+        for out in outs:
+            names.update(dict.fromkeys(_head(graph, out)))
+    return list(names)
+
+
+def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *, method: str = "minmax",
+                  fp32_islands: Iterable[str] = DEFAULT_FP32_ISLANDS) -> Path:
+    """Static QDQ int8: uint8 activations, int8 per-channel weights, ranges from `calibration` sketches; the
+    `fp32_islands` stay float32."""
     if not calibration:
         raise ValueError("int8 quantization needs at least one calibration sketch")
-    methods = {"minmax": CalibrationMethod.MinMax, "percentile": CalibrationMethod.Percentile,
-               "entropy": CalibrationMethod.Entropy}
-    if method not in methods:
-        raise ValueError(f"calibration method must be one of {', '.join(methods)}; got {method!r}")
+    if method not in CALIBRATION_METHODS:
+        raise ValueError(f"calibration method must be one of {', '.join(CALIBRATION_METHODS)}; got {method!r}")
     with tempfile.TemporaryDirectory(prefix="vtkiosk-quant-") as tmp:
         pre = Path(tmp) / "pre.onnx"
         quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
+        exclude = fp32_island_nodes(onnx.load(str(pre)), fp32_islands)
         extra = {"ActivationSymmetric": False, "WeightSymmetric": True}
         if method == "percentile":
             extra["CalibPercentile"] = 99.999
         quantize_static(str(pre), str(dst), _Reader(calibration), quant_format=QuantFormat.QDQ,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
-                        calibrate_method=methods[method], extra_options=extra)
+                        calibrate_method=CALIBRATION_METHODS[method], nodes_to_exclude=exclude,
+                        extra_options=extra)
     return Path(dst)
 
 

@@ -1,7 +1,4 @@
 """`vtkiosk export` on a real (briefly trained) run: parity, precisions, the error-bound refusal, verify."""
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -11,24 +8,9 @@ from kiosk.bundle import open_bundle
 from kiosk.probe import probe_bundle
 from kiosk.sketch import letterbox, network_input, object_mask
 
+from tests.exporter.conftest import vtk
+
 pytestmark = pytest.mark.slow
-
-
-def vtk(*args):
-    return subprocess.run([sys.executable, "-m", "vtkiosk", *map(str, args)], capture_output=True, text=True,
-                          timeout=900)
-
-
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("export")
-    data = tmp / "data"
-    proc = vtk("data", "synth", "--out", data, "--garments", 1, "--frame", "320x240", "--no-progress")
-    assert proc.returncode == 0, proc.stderr
-    run = tmp / "run"
-    proc = vtk("train", "--data", data, "--garment", "DenimShorts", "--preset", "tiny", "--steps", 2, "--out", run)
-    assert proc.returncode == 0, proc.stderr
-    return run
 
 
 def test_fp32_parity_and_dynamic_size(run_dir, tmp_path):

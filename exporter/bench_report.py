@@ -1,0 +1,86 @@
+"""The benchmark's table and its verdict on the issue's goals (pure functions of the result rows)."""
+from __future__ import annotations
+
+GOAL_SIZE = (1536, 1536)
+GOAL_P50_MS = 90.0
+GOAL_SPEEDUP = 4.0
+GOAL_FRICTION_MAE = 1.0
+GOAL_PSNR_DB = 35.0
+
+COLUMNS = [("graph", "graph", "{}"), ("size", "size", "{}"), ("precision", "prec", "{}"),
+           ("provider", "provider", "{}"), ("source", "source", "{}"), ("p50_ms", "p50 ms", "{:.1f}"),
+           ("p95_ms", "p95 ms", "{:.1f}"), ("peak_rss_mb", "peak RSS MiB", "{:.0f}"),
+           ("speedup_vs_torch", "x torch", "{:.2f}"), ("visual_psnr_db", "PSNR dB", "{:.1f}"),
+           ("tactile_mae", "tactile MAE", "{:.4f}"), ("friction_mae_levels", "friction MAE", "{:.2f}"),
+           ("friction_max_levels", "friction max", "{:.0f}"), ("full_angle_deg", "GT angle deg", "{:.2f}"),
+           ("full_friction_mae", "GT friction MAE", "{:.2f}")]
+
+
+def _cell(row: dict, key: str, fmt: str) -> str:
+    v = row.get(key)
+    if v is None:
+        return "-"
+    if key == "size" and not row.get("declared", True):
+        return f"{v}*"
+    return fmt.format(v)
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The result rows as a Markdown table (also what the command prints)."""
+    head = "| " + " | ".join(h for _, h, _ in COLUMNS) + " |"
+    sep = "|" + "|".join("---" if i < 5 else "---:" for i in range(len(COLUMNS))) + "|"
+    lines = [head, sep]
+    for r in rows:
+        lines.append("| " + " | ".join(_cell(r, k, f) for k, _, f in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def goals(rows: list[dict], default_precision: dict[str, str]) -> list[dict]:
+    """Each goal of the issue at the bundle's (default) precision: value, target, met (None = not measured)."""
+    own = [r for r in rows if r["provider"] != "torch-eager" and r["source"] == "bundle"
+           and r["precision"] == default_precision.get(r["graph"])]
+    cpu = [r for r in own if r["provider"] == "CPUExecutionProvider"]
+    out = []
+    size = f"{GOAL_SIZE[0]}x{GOAL_SIZE[1]}"
+    at = [r for r in cpu if r["graph"] == "full" and r["size"] == size]
+    out.append({"goal": f"full graph (both outputs) at {size}: p50 <= {GOAL_P50_MS:.0f} ms",
+                "value": at[0]["p50_ms"] if at else None, "target": GOAL_P50_MS,
+                "met": (at[0]["p50_ms"] <= GOAL_P50_MS) if at else None,
+                "note": (f"{at[0]['p50_ms'] / GOAL_P50_MS:.1f}x the budget" if at and at[0]["p50_ms"] > GOAL_P50_MS
+                         else "" if at else f"{size} full graph not measured")})
+    sp = [r for r in cpu if r.get("speedup_vs_torch") is not None]
+    worst = min(sp, key=lambda r: r["speedup_vs_torch"]) if sp else None
+    out.append({"goal": f">= {GOAL_SPEEDUP:.0f}x faster than PyTorch eager fp32", "target": GOAL_SPEEDUP,
+                "value": worst["speedup_vs_torch"] if worst else None,
+                "met": (worst["speedup_vs_torch"] >= GOAL_SPEEDUP) if worst else None,
+                "note": f"worst: {worst['graph']} {worst['size']}" if worst else "no PyTorch eager rows"})
+    fr = [r for r in own if r.get("friction_mae_levels") is not None]
+    worst = max(fr, key=lambda r: r["friction_mae_levels"]) if fr else None
+    out.append({"goal": f"friction-map MAE vs fp32 <= {GOAL_FRICTION_MAE:g} level", "target": GOAL_FRICTION_MAE,
+                "value": worst["friction_mae_levels"] if worst else None,
+                "met": (worst["friction_mae_levels"] <= GOAL_FRICTION_MAE) if worst else None,
+                "note": f"worst: {worst['graph']} {worst['size']}" if worst else "no fp32 reference"})
+    ps = [r for r in own if r.get("visual_psnr_db") is not None]
+    worst = min(ps, key=lambda r: r["visual_psnr_db"]) if ps else None
+    out.append({"goal": f"visual PSNR vs fp32 >= {GOAL_PSNR_DB:g} dB", "target": GOAL_PSNR_DB,
+                "value": worst["visual_psnr_db"] if worst else None,
+                "met": (worst["visual_psnr_db"] >= GOAL_PSNR_DB) if worst else None,
+                "note": f"worst: {worst['graph']} {worst['size']}" if worst else "no fp32 reference"})
+    return out
+
+
+def goal_lines(items: list[dict]) -> list[str]:
+    lines = []
+    for g in items:
+        verdict = {True: "met", False: "MISSED", None: "not measured"}[g["met"]]
+        value = "-" if g["value"] is None else f"{g['value']:.2f}"
+        lines.append(f"  {verdict:12s} {g['goal']}: {value}" + (f" ({g['note']})" if g.get("note") else ""))
+    return lines
+
+
+def profile_lines(profile: dict, top: int = 8) -> list[str]:
+    lines = [f"  profile {profile['graph']} {profile['size']} {profile['precision']}: "
+             f"{profile['kernel_ms_per_run']:.0f} ms of kernels per run"]
+    for op in profile["ops"][:top]:
+        lines.append(f"    {op['op']:24s} {100 * op['share']:5.1f} %  {op['ms_per_run']:8.1f} ms")
+    return lines

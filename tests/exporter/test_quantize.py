@@ -1,0 +1,80 @@
+"""int8 fp32 islands (found from the graph's structure) and which graphs get the ConvTranspose rewrite."""
+import collections
+
+import numpy as np
+import onnx
+import pytest
+
+from exporter.calibration import calibration_set
+from exporter.export import ExportConfig, export_run, rewrites_conv_transpose
+from exporter.graphs import export_graph
+from exporter.quantize import fp32_island_nodes, quantize_int8
+from kiosk.bundle import open_bundle
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def graphs(run_dir, tmp_path_factory):
+    from trainer.checkpoint import load_generator
+    gen, _ = load_generator(run_dir)
+    tmp = tmp_path_factory.mktemp("quant")
+    return {kind: export_graph(gen, kind, tmp / f"{kind}.onnx", size=(256, 256)) for kind in ("full", "tactile")}
+
+
+def _ops(model, names):
+    by = {n.name: n.op_type for n in model.graph.node}
+    return collections.Counter(by[n] for n in names)
+
+
+def test_islands_from_structure(graphs):
+    full = onnx.load(str(graphs["full"]))
+    pe = _ops(full, fp32_island_nodes(full, ["pe"]))
+    assert pe["Sin"] == 2 and pe["Cos"] == 2 and pe["CumSum"] == 2 and "Conv" not in pe
+    first = fp32_island_nodes(full, ["first-conv"])
+    assert first == [next(n.name for n in full.graph.node if n.op_type == "Conv")]
+    heads = _ops(full, fp32_island_nodes(full, ["heads"]))
+    assert heads["Conv"] == 2 and heads["Tanh"] == 2 and heads["Mul"] == 2  # one chain per output
+    tac = onnx.load(str(graphs["tactile"]))
+    branch = fp32_island_nodes(tac, ["tactile-branch"])
+    assert _ops(tac, branch)["Conv"] == 4 and _ops(tac, fp32_island_nodes(tac, ["heads"]))["Conv"] == 1
+    assert fp32_island_nodes(full, []) == []
+    with pytest.raises(ValueError, match="unknown fp32 island"):
+        fp32_island_nodes(full, ["encoder"])
+
+
+def test_int8_keeps_islands_float(graphs, run_dir, tmp_path):
+    sketch = np.full((240, 320), 255, np.uint8)
+    sketch[40:200, 60] = sketch[40:200, 260] = 0
+    sketch[40, 60:261] = sketch[200, 60:261] = 0
+    cal = calibration_set(sketch, [(256, 256)], per_size=2)
+    q = onnx.load(str(quantize_int8(graphs["full"], tmp_path / "q.onnx", cal)))
+    producer = {o: n for n in q.graph.node for o in n.output}
+    for node in q.graph.node:
+        if node.op_type in ("Sin", "Cos", "Tanh"):  # fp32 in, not fed by a dequantized tensor
+            assert all(producer.get(i) is None or producer[i].op_type != "DequantizeLinear" for i in node.input)
+    convs = [n for n in q.graph.node if n.op_type == "Conv"]
+    assert producer[convs[0].input[0]].op_type != "DequantizeLinear"  # first conv sees the exact PE
+    assert any(producer[c.input[0]].op_type == "DequantizeLinear" for c in convs[1:])  # the rest is int8
+    plain = onnx.load(str(quantize_int8(graphs["full"], tmp_path / "p.onnx", cal, fp32_islands=())))
+    assert sum(n.op_type == "QuantizeLinear" for n in plain.graph.node) > \
+        sum(n.op_type == "QuantizeLinear" for n in q.graph.node)
+
+
+def test_rewrite_only_for_int8_and_recorded(run_dir, tmp_path):
+    assert rewrites_conv_transpose("int8") and not rewrites_conv_transpose("fp32")
+    assert not rewrites_conv_transpose("fp16")
+    for precision in ("fp32", "int8"):
+        out = tmp_path / f"{precision}.vtb"
+        export_run(run_dir, out, ExportConfig(precision=precision, sizes=[(256, 256)], graphs=("tactile",),
+                                              calibration_per_size=2, error_per_size=1, force=True),
+                   progress=lambda *_: None)
+        b = open_bundle(out, None, workdir=tmp_path / f"w{precision}", allow_unsigned=True)
+        ops = {n.op_type for n in onnx.load(str(b.graph_path("tactile"))).graph.node}
+        assert ("ConvTranspose" in ops) == (precision == "fp32")
+        assert ("DepthToSpace" in ops) == (precision == "int8")
+        prov = b.manifest.provenance
+        if precision == "int8":
+            assert prov["int8_fp32_islands"] == "pe,first-conv,heads" and prov["calibration"].startswith("minmax")
+        else:
+            assert prov["rewrite"] == "none" and "int8_fp32_islands" not in prov
