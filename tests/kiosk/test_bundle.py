@@ -233,6 +233,46 @@ def test_manifest_yaml_hostile(text, match):
         parse_manifest(text)
 
 
+def _with_raw(key: str, raw: str) -> bytes:
+    """A valid manifest's YAML with the line of top-level or nested `key` replaced by `key: raw`, verbatim."""
+    lines = yaml.safe_dump(_manifest_doc(), sort_keys=False).splitlines()
+    i = next(i for i, line in enumerate(lines) if line.strip().startswith(f"{key}:"))
+    indent = lines[i][:len(lines[i]) - len(lines[i].lstrip())]
+    j = i + 1
+    while j < len(lines) and len(lines[j]) - len(lines[j].lstrip()) > len(indent):
+        j += 1  # drop the old value's nested lines
+    return "\n".join(lines[:i] + [f"{indent}{key}: {raw}"] + lines[j:]).encode() + b"\n"
+
+
+@pytest.mark.parametrize("key, raw, match", [
+    ("created_at", "2024-05-01T10:00:00Z", "created_at must be a non-empty string"),   # implicit timestamp
+    ("display_name", "!!binary aGVsbG8=", "display_name must be a non-empty string"),  # bytes
+    ("graphs", "[full, tactile]", "graphs must be a mapping"),
+    ("assets", "!!set {sketch, mask}", "assets must be a mapping"),
+    ("metrics", "{1: 2.0}", "keys must be strings"),
+    ("metrics", "{psnr: [30, 31]}", "must be a number"),
+    ("friction_scale", "0x10", None),                                                # YAML 1.1 int: accepted
+    ("panel", "{size: [1280.5, 800]}", "width, height"),
+    ("provenance", "{host: 3}", "provenance must map strings to strings"),
+    ("schema_version", "1.0", "schema_version must be an integer"),
+])
+def test_manifest_yaml_unexpected_types(key, raw, match):
+    data = _with_raw(key, raw)
+    if match is None:
+        assert parse_manifest(data).friction_scale == 16.0
+        return
+    with pytest.raises(BundleError, match=match):
+        parse_manifest(data)
+
+
+def test_manifest_alias_bomb_refused_before_expansion():
+    laughs = b"a: &a [x, x, x, x, x, x, x, x, x]\n" + b"".join(
+        b"%c: &%c [*%c, *%c, *%c, *%c, *%c, *%c, *%c, *%c, *%c]\n" % ((c, c) + (c - 1,) * 9)
+        for c in range(ord("b"), ord("j")))
+    with pytest.raises(BundleError, match="anchor"):
+        parse_manifest(laughs)
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.binary(max_size=400))
 def test_manifest_parser_fuzz(data):
