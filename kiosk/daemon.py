@@ -35,12 +35,11 @@ from kiosk.config import KioskConfig
 from kiosk.device_output import DeviceOutput
 from kiosk.engine import InferenceError, LoadedBundle, NonFiniteOutput, OutputCache, visual_rgba
 from kiosk.errors import InputError, KioskError
-from kiosk.haptics import NonFiniteCounter
 from kiosk.health import CheckResult, Heartbeat, HealthMonitor, device_check, http_check
 from kiosk.manifest import BundleError
 from kiosk.metrics import Registry
 from kiosk.notify import Notifier, Watchdog, watchdog_interval_s
-from kiosk.render import Texture, friction_texture
+from kiosk.render import FrictionSource
 from kiosk.scene import PanelPlan, Plan, Planner, Scene, SketchInput
 from kiosk.server import KioskServer, Request, Response
 
@@ -58,7 +57,7 @@ class PanelResult:
     status: str  # ok | kept | empty
     plan: PanelPlan
     visual: np.ndarray | None = None  # RGBA (H, W, 4) at the grid
-    texture: Texture | None = None
+    friction: FrictionSource | None = None  # made by the haptic output thread
     notice: str | None = None
 
     def to_json(self) -> dict:
@@ -67,7 +66,8 @@ class PanelResult:
                 "visual": None if self.visual is None else
                 {"rect": list(p.region), "size": [int(self.visual.shape[1]), int(self.visual.shape[0])]},
                 "reference": p.placement.to_json() if p.placement else None,
-                "friction": None if self.texture is None else {"rect": list(self.texture.rect)},
+                "friction": None if self.friction is None or self.friction.rect is None else
+                {"rect": list(self.friction.rect)},
                 "clip": list(p.clip)}
 
 
@@ -118,7 +118,8 @@ class KioskDaemon:
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
                                margin_px=inf.margin_px, cached=self.cache.has)
-        self.device = DeviceOutput(config.device, display=display, on_error=self._device_error)
+        self.device = DeviceOutput(config.device, display=display, on_error=self._device_error,
+                                   on_texture=self._texture_made)
         self.notifier = notifier if notifier is not None else Notifier.from_env()
         self.heartbeat = Heartbeat()
         self.watchdog: Watchdog | None = None
@@ -131,7 +132,7 @@ class KioskDaemon:
         self._frame_ids = itertools.count(1)
         self._last_plan: dict | None = None
         self._last_good: dict[str, PanelResult] = {}
-        self._textures: dict[str, Texture] = {}
+        self._textures: dict[str, FrictionSource] = {}
         self._notices: dict[str, str] = {}
         self._control_handlers: dict[str, Callable[[dict], dict]] = {}
         self._hang = threading.Event()
@@ -166,6 +167,11 @@ class KioskDaemon:
 
     def _device_error(self, kind: str, exc: BaseException) -> None:
         self.m_device_errors.inc(kind=kind)
+
+    def _texture_made(self, source: FrictionSource) -> None:
+        self.m_stage.observe(source.ms / 1e3, stage="friction")
+        if source.nonfinite:
+            self.m_nonfinite.inc(source.nonfinite)
 
     # -- bundles -------------------------------------------------------------------------------------------------
     @property
@@ -207,21 +213,27 @@ class KioskDaemon:
             out.append((str(path), load))
         return out
 
-    def _probe(self, lb: LoadedBundle) -> dict:
-        """Load every graph and run it at the largest grid the planner will use, within the latency budget."""
+    def _probe(self, lb: LoadedBundle, *, enforce_budget: bool = True) -> dict:
+        """Load every graph and run it at the largest grid the planner will use; the best of three runs must be
+        within the latency budget (`enforce_budget`; at start-up, with nothing else to serve, an overrun is logged
+        and the health check reports the loop's real latency instead)."""
         inf = self.config.inference
         budget = inf.latency_budget_ms
         results = {}
         for kind in lb.graphs():
             cw, ch = lb.cap(kind)
-            grid = (min(cw, inf.max_resolution) // 256 * 256 or 256, min(ch, inf.max_resolution) // 256 * 256 or 256)
+            grid = (max(256, min(cw, inf.max_resolution) // 256 * 256), max(256, min(ch, inf.max_resolution) // 256 * 256))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
-            runs = lb.warm((kind,), [preview, grid, grid])  # the second run at `grid` is the timed one
-            ms = runs[-1][2]
+            runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
+            ms = min(r[2] for r in runs[2:])
             results[kind] = {"grid": list(grid), "ms": round(ms, 1)}
             if ms > budget:
-                raise BundleError(f"bundle {lb.garment_id}: the {kind} graph takes {ms:.0f} ms at {grid[0]}x{grid[1]}, "
-                                  f"over the {budget:.0f} ms latency budget")
+                msg = (f"bundle {lb.garment_id}: the {kind} graph takes {ms:.0f} ms at {grid[0]}x{grid[1]}, over the "
+                       f"{budget:.0f} ms latency budget")
+                if enforce_budget:
+                    raise BundleError(msg)
+                log.warning("%s; serving it anyway (nothing else to serve)", msg)
+                results[kind]["over_budget"] = True
         return results
 
     def reload(self) -> dict:
@@ -254,7 +266,7 @@ class KioskDaemon:
                     report["unchanged"].append({"garment": lb.garment_id, "key": old.key})
                     continue
                 try:
-                    probe = self._probe(lb)
+                    probe = self._probe(lb, enforce_budget=old is not None)
                 except (KioskError, OSError) as exc:
                     lb.close()
                     entry = {"garment": lb.garment_id, "source": source, "reason": str(exc)}
@@ -502,7 +514,7 @@ class KioskDaemon:
         t_planned = time.monotonic()
         frame = next(self._frame_ids)
         timings = {"queue_ms": 1e3 * (t_start - job.received_at), "rasterize_ms": plan.rasterize_ms,
-                   "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0, "friction_ms": 0.0}
+                   "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
         results: list[PanelResult] = []
         notices: dict[str, str] = {}
         for pp in plan.panels:
@@ -517,8 +529,8 @@ class KioskDaemon:
             device_frame = frame
             for r in results:
                 if r.status == "ok" and "tactile" in r.plan.needs:
-                    if r.texture is not None:
-                        self._textures[r.panel] = r.texture
+                    if r.friction is not None:
+                        self._textures[r.panel] = r.friction
                     else:
                         self._textures.pop(r.panel, None)
                 elif r.status == "empty" or "tactile" not in r.plan.needs:
@@ -533,7 +545,7 @@ class KioskDaemon:
         self._notices.update(notices)
         ready = time.monotonic()
         timings["total_ms"] = 1e3 * (ready - job.received_at)
-        for stage in ("rasterize", "plan", "inference", "visual", "friction"):
+        for stage in ("rasterize", "plan", "inference", "visual"):
             self.m_stage.observe(timings[f"{stage}_ms"] / 1e3, stage=stage)
         self.m_frames.inc(kind="preview" if req.preview else "final")
         self.m_e2e.observe(ready - job.received_at, target="visual")
@@ -583,14 +595,8 @@ class KioskDaemon:
             timings["visual_ms"] += 1e3 * (time.perf_counter() - t1)
         res = PanelResult(pp.panel, "ok", pp, visual=have.get("visual") if "visual" in pp.needs else None)
         if "tactile" in pp.needs and not preview:
-            t2 = time.perf_counter()
-            counter = NonFiniteCounter()
-            res.texture = friction_texture(pp.panel, have["tactile"], pp.region, pp.clip,
-                                           scale=bundle.friction_scale,
-                                           normalization=bundle.friction_normalization, counter=counter)
-            if counter.count:
-                self.m_nonfinite.inc(counter.count)
-            timings["friction_ms"] += 1e3 * (time.perf_counter() - t2)
+            res.friction = FrictionSource(pp.panel, have["tactile"], pp.region, pp.clip,
+                                          scale=bundle.friction_scale, normalization=bundle.friction_normalization)
         if not preview:
             self._last_good[pp.panel] = res
         return res
@@ -673,7 +679,8 @@ class KioskDaemon:
         if c is None:
             return Response.error(404, f"no device frame {frame}")
         return Response.json({"frame": c.frame, "status": c.status, "committed_at": c.at, "tiles": c.tiles,
-                              "wire_bytes": c.wire_bytes, "upload_ms": round(c.upload_ms, 3)})
+                              "wire_bytes": c.wire_bytes, "friction_ms": round(c.friction_ms, 3),
+                              "upload_ms": round(c.upload_ms, 3)})
 
     def _api_device_frame(self, req: Request) -> Response:
         """The emulated device's committed frame (PNG) and the host's composed frame: tests and the bench compare

@@ -21,7 +21,7 @@ import numpy as np
 from firmware_bridge.config import BridgeConfig
 from firmware_bridge.display import HapticDisplay, LinkState
 from firmware_bridge.errors import BridgeError, CommitError, LinkDownError
-from kiosk.render import Texture, intersect
+from kiosk.render import FrictionSource, intersect
 
 log = logging.getLogger(__name__)
 KEEP_COMMITS = 256
@@ -34,16 +34,19 @@ class Commit:
     tiles: int = 0
     wire_bytes: int = 0
     upload_ms: float = 0.0
+    friction_ms: float = 0.0
     status: str = "committed"  # committed | superseded | failed | pending
 
 
 class DeviceOutput:
-    def __init__(self, config: BridgeConfig, *, display: HapticDisplay | None = None, on_error=None):
+    def __init__(self, config: BridgeConfig, *, display: HapticDisplay | None = None, on_error=None,
+                 on_texture=None):
         self.config = config
         self.display = display or HapticDisplay(config)
         self.on_error = on_error or (lambda kind, exc: None)
+        self.on_texture = on_texture or (lambda source: None)
         self._cond = threading.Condition()
-        self._wanted: tuple[int, list[Texture]] | None = None
+        self._wanted: tuple[int, list[FrictionSource]] | None = None
         self._applied_panels: set[str] = set()
         self._commits: OrderedDict[int, Commit] = OrderedDict()
         self._pending_since_down: int | None = None
@@ -96,11 +99,12 @@ class DeviceOutput:
         self.on_error(kind, exc)
 
     # -- frames --------------------------------------------------------------------------------------------------
-    def submit(self, frame: int, textures: list[Texture]) -> None:
+    def submit(self, frame: int, sources: list[FrictionSource]) -> None:
+        """Make these friction textures (one per panel, later ones on top) the device's frame."""
         with self._cond:
             if self._wanted is not None:
                 self._record(Commit(self._wanted[0], None, status="superseded"))
-            self._wanted = (frame, list(textures))
+            self._wanted = (frame, list(sources))
             self._record(Commit(frame, None, status="pending"))
             self._cond.notify_all()
 
@@ -150,7 +154,7 @@ class DeviceOutput:
                 continue
             self._apply(*job)
 
-    def _keep_for_later(self, job: tuple[int, list[Texture]]) -> None:
+    def _keep_for_later(self, job: tuple[int, list[FrictionSource]]) -> None:
         """A frame that could not be sent because the device is absent: sent once it opens."""
         with self._cond:
             if self._wanted is None:
@@ -162,8 +166,16 @@ class DeviceOutput:
             self._pending_since_down = None
             self.last_error = None
 
-    def _apply(self, frame: int, textures: list[Texture]) -> None:
+    def _apply(self, frame: int, sources: list[FrictionSource]) -> None:
+        t_f = time.perf_counter()
+        textures = []
+        for src in sources:
+            t = src.texture()
+            self.on_texture(src)
+            if t is not None:
+                textures.append(t)
         t0 = time.perf_counter()
+        friction_ms = 1e3 * (t0 - t_f)
         d = self.display
         try:
             info = d.info
@@ -195,7 +207,7 @@ class DeviceOutput:
         self.last_error = None
         self._pending_since_down = None
         self._record(Commit(frame, time.monotonic(), result.tiles_sent, result.wire_bytes,
-                            1e3 * (time.perf_counter() - t0)))
+                            1e3 * (time.perf_counter() - t0), friction_ms))
 
     # -- state ---------------------------------------------------------------------------------------------------
     @property

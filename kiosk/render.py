@@ -7,6 +7,8 @@ panel, so it is a texture that lands exactly under the visual: texture pixel (i,
 """
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +53,35 @@ def friction_texture(panel: str, tactile: np.ndarray, region: Rect, clip: Rect, 
     vx, vy, vw, vh = visible
     crop = np.ascontiguousarray(fm[vy - ry:vy - ry + vh, vx - rx:vx - rx + vw])
     return Texture(panel, crop, vx, vy)
+
+
+class FrictionSource:
+    """A panel's friction texture, made on first use (by the haptic output thread, so the visual's response never
+    waits for it). Its screen rectangle is known before: the visible part of the region."""
+
+    def __init__(self, panel: str, tactile: np.ndarray, region: Rect, clip: Rect, *, scale: float,
+                 normalization: str = "calibrated"):
+        self.panel, self.tactile, self.region, self.clip = panel, tactile, region, clip
+        self.scale, self.normalization = scale, normalization
+        self.rect = intersect(region, clip)
+        self.nonfinite = 0
+        self.ms = 0.0
+        self._texture: Texture | None = None
+        self._made = False
+        self._lock = threading.Lock()
+
+    def texture(self) -> Texture | None:
+        with self._lock:
+            if self._made:
+                return self._texture
+            t0 = time.perf_counter()
+            counter = NonFiniteCounter()
+            self._texture = friction_texture(self.panel, self.tactile, self.region, self.clip, scale=self.scale,
+                                             normalization=self.normalization, counter=counter)
+            self.nonfinite = counter.count
+            self.ms = 1e3 * (time.perf_counter() - t0)
+            self._made = True
+            return self._texture
 
 
 def compose(textures: list[Texture], size: tuple[int, int]) -> np.ndarray:

@@ -1,48 +1,169 @@
-"""`vtkiosk demo`: the README's main job.
+"""`vtkiosk demo`: the README's main job: the kiosk serving a garment with the emulated haptic screen.
 
-Lives in the `vtkiosk` package, the composition root: it may use the trainer and exporter to build its demo
-assets, which `kiosk/` itself must never import. Assets are cached in the work folder, so a second run starts in
-seconds. Today it makes the synthetic garment set and its contact sheets; the kiosk issues extend it to train and
-export a demo bundle and serve it with the emulated device.
+On first run it builds a demo bundle the way an operator would, with our own commands in child processes:
+`vtkiosk data synth` (one synthetic garment), `vtkiosk train --preset demo` (a short schedule: a demo-quality
+model in a few minutes on 2 CPU cores), `vtkiosk export --precision int8` signed with a demo key generated into the
+work folder (0600). The bundle is cached under `out/demo/bundles/<key>/`, keyed by a hash of everything that made
+it (the demo's settings, the preset, and the source of the trainer, exporter and runtime contract), so later runs
+start in seconds. Then it serves that bundle (or `--bundle FILE`, e.g. a properly trained one) with the emulated
+device, prints the URL and runs until Ctrl-C. The serving process never imports torch: training and export run in
+child processes.
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
-from trainer.data.touchclothing import find_garments, load_garment
+ROOT = Path(__file__).resolve().parents[1]
+DEMO_VERSION = "2"  # bump when the recipe below changes in a way the source hash cannot see
+FRAME = (320, 240)
+SIZES = "256,512"
+CODE = ("trainer", "exporter", "kiosk/sketch.py", "kiosk/haptics.py", "kiosk/manifest.py", "kiosk/bundle.py",
+        "kiosk/signature.py", "kiosk/probe.py")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", type=Path, default=Path("out/demo"),
-                        help="where demo assets are built and cached (default out/demo)")
-    parser.add_argument("--garments", type=int, default=6)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rebuild", action="store_true", help="ignore the cache and rebuild everything")
-    return parser
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    p.add_argument("--workdir", type=Path, default=Path("out/demo"),
+                   help="where the demo bundle, its key and the serving state live (default out/demo)")
+    p.add_argument("--bundle", type=Path, default=None,
+                   help="serve this bundle instead of building the demo one (give --trusted-keys or --allow-unsigned)")
+    p.add_argument("--trusted-keys", type=Path, default=None, help="trusted keys folder for --bundle")
+    p.add_argument("--allow-unsigned", action="store_true", help="development only: serve an unsigned --bundle")
+    p.add_argument("--port", type=int, default=8765, help="HTTP port on 127.0.0.1 (default 8765; 0: any free)")
+    p.add_argument("--steps", type=int, default=None, help="training steps (default: the demo preset's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rebuild", action="store_true", help="ignore the cache and build the demo bundle again")
+    p.add_argument("--build-only", action="store_true", help="build (or find) the demo bundle, then exit")
+    p.add_argument("--exit-after-ready", action="store_true", help="start serving, report the URL, then stop")
+    return p
+
+
+def _source_hash(h: "hashlib._Hash") -> None:
+    for entry in CODE:
+        path = ROOT / entry
+        files = sorted(path.rglob("*.py")) + sorted(path.rglob("*.yaml")) if path.is_dir() else [path]
+        for f in files:
+            if "__pycache__" in f.parts:
+                continue
+            h.update(f.relative_to(ROOT).as_posix().encode())
+            h.update(f.read_bytes())
+
+
+def cache_key(seed: int, steps: int | None) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps({"version": DEMO_VERSION, "frame": FRAME, "sizes": SIZES, "seed": seed, "steps": steps,
+                         "python": sys.version_info[:2]}).encode())
+    _source_hash(h)
+    return h.hexdigest()[:16]
+
+
+def _run(cmd: list[str], log: Path, what: str) -> None:
+    t0 = time.perf_counter()
+    print(f"demo: {what} ...", flush=True)
+    with open(log, "ab") as out:
+        out.write(("\n$ " + " ".join(cmd) + "\n").encode())
+        out.flush()
+        proc = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
+    if proc.returncode != 0:
+        tail = log.read_text(errors="replace").strip().splitlines()[-5:]
+        raise DemoError(f"{what} failed (exit {proc.returncode}); see {log}:\n  " + "\n  ".join(tail))
+    print(f"demo: {what} done in {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+class DemoError(Exception):
+    user_facing = True
+
+
+def demo_keys(workdir: Path) -> tuple[Path, Path]:
+    """The demo signing key (generated once, 0600) and a trusted-keys folder holding its public half."""
+    from exporter.keys import generate_keypair
+
+    keys = workdir / "keys"
+    if not (keys / "demo.key").exists():
+        generate_keypair(keys, "demo")
+    trusted = workdir / "trusted-keys"
+    trusted.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(keys / "demo.pub", trusted / "demo.pub")
+    return keys / "demo.key", trusted
+
+
+def build_bundle(workdir: Path, *, seed: int = 0, steps: int | None = None, rebuild: bool = False) -> Path:
+    """The cached demo bundle, built first if needed. Returns the .vtb path."""
+    workdir = Path(workdir).resolve()
+    key = cache_key(seed, steps)
+    folder = workdir / "bundles" / key
+    bundle = folder / "demo.vtb"
+    if bundle.is_file() and not rebuild:
+        print(f"demo: reusing the demo bundle {bundle}")
+        return bundle
+    signing_key, _ = demo_keys(workdir)
+    build = workdir / "build" / key
+    shutil.rmtree(build, ignore_errors=True)
+    build.mkdir(parents=True)
+    log = build / "build.log"
+    py = [sys.executable, "-m", "vtkiosk"]
+    t0 = time.perf_counter()
+    print(f"demo: building a demo bundle (cache key {key}); log in {log}")
+    _run(py + ["data", "synth", "--out", str(build / "data"), "--garments", "1", "--seed", str(seed),
+               "--frame", f"{FRAME[0]}x{FRAME[1]}", "--no-progress"], log, "synthesising a garment")
+    train = py + ["train", "--data", str(build / "data"), "--preset", "demo", "--out", str(build / "run")]
+    if steps is not None:
+        train += ["--steps", str(steps)]
+    _run(train, log, "training a demo-quality model (preset demo)")
+    # int8 at the serving sizes; the demo model is barely trained, so its int8 friction error bound is relaxed
+    # (the export still measures it and records it in the manifest).
+    _run(py + ["export", "--run", str(build / "run"), "--out", str(build / "demo.vtb"), "--precision", "int8",
+               "--sizes", SIZES, "--sign-key", str(signing_key), "--max-friction-mae", "8",
+               "--display-name", "Demo denim shorts"], log, "exporting a signed int8 bundle")
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.move(str(build / "demo.vtb"), bundle)
+    (folder / "build.log").write_bytes(log.read_bytes())
+    for other in (workdir / "bundles").iterdir():
+        if other.name != key:
+            shutil.rmtree(other, ignore_errors=True)  # one cached bundle: the current one
+    shutil.rmtree(workdir / "build", ignore_errors=True)
+    print(f"demo: demo bundle ready in {time.perf_counter() - t0:.0f} s: {bundle}")
+    return bundle
 
 
 def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
     args = build_parser(prog).parse_args(argv)
-    from trainer.data.contact_sheet import write_contact_sheet
-    from trainer.data.synthetic import generate_dataset
-
-    data = args.workdir / f"synthetic-seed{args.seed}-n{args.garments}"
-    stamp = data / ".complete"
-    t0 = time.perf_counter()
-    if args.rebuild or not stamp.exists():
-        print(f"demo: generating {args.garments} synthetic garments in {data}")
-        generate_dataset(data, garments=args.garments, seed=args.seed)
-        stamp.write_text("ok\n")
+    workdir = args.workdir.resolve()
+    if args.bundle is not None:
+        bundle = args.bundle.resolve()
+        trusted = args.trusted_keys.resolve() if args.trusted_keys else None
     else:
-        print(f"demo: reusing synthetic garments in {data}")
-    sheets = args.workdir / "sheets"
-    for root in find_garments(data):
-        out = sheets / f"{root.name}.png"
-        if args.rebuild or not out.exists():
-            write_contact_sheet(load_garment(root), out)
-        print(f"demo: contact sheet {out}")
-    print(f"demo: ready in {time.perf_counter() - t0:.1f} s")
-    return 0
+        bundle = build_bundle(workdir, seed=args.seed, steps=args.steps, rebuild=args.rebuild)
+        _, trusted = demo_keys(workdir)
+    if args.build_only:
+        return 0
+    from kiosk.config import load_config
+    from kiosk.daemon import KioskDaemon
+    from kiosk.serve_cli import configure_logging, run
+
+    store = {"allow_unsigned": bool(args.allow_unsigned)}
+    if trusted is not None:
+        store["trusted_keys"] = str(trusted)
+    config = load_config(None, {
+        "bundles": [str(bundle)], "store": store, "state_dir": str(workdir / "state"),
+        "server": {"host": "127.0.0.1", "port": args.port},
+        "device": {"type": "emulated", "report_size": 1024, "emulator": {"link": "hs-hid"}},
+        "log_level": "WARNING"})
+    configure_logging(config.log_level)
+    t0 = time.perf_counter()
+    daemon = KioskDaemon(config)
+
+    def say(text: str, flush: bool = True) -> None:
+        print(f"demo: {text} (started in {time.perf_counter() - t0:.1f} s)", flush=flush)
+        if not args.exit_after_ready:
+            print("demo: open the URL in a browser and draw a garment; the emulated haptic screen feels it. "
+                  "Ctrl-C stops.", flush=True)
+
+    return run(daemon, exit_after_ready=args.exit_after_ready, out=say)
