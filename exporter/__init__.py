@@ -1,3 +1,3 @@
 """Turns a trained run into a signed, quantized ONNX bundle (`vtkiosk export`)."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"  # 0.2: int8 fp32 islands, native ConvTranspose in fp32/fp16, cheaper PE input

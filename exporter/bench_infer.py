@@ -119,11 +119,11 @@ class _TorchSession:
 
     def __init__(self, run_dir: Path, which: str, graph: str, threads: int):
         import torch
-        from exporter.graphs import graph_module
+        from exporter.graphs import eager_module
         from trainer.checkpoint import load_generator
         torch.set_num_threads(threads)
         self._torch = torch
-        self._module = graph_module(load_generator(run_dir, which)[0], graph, rewrite=False)
+        self._module = eager_module(load_generator(run_dir, which)[0], graph)
         self._outputs = GRAPH_OUTPUTS[graph]
 
     def run(self, names, feed):

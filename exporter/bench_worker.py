@@ -58,11 +58,11 @@ def _onnx_runner(spec: dict, feed: dict):
 
 def _torch_runner(spec: dict, feed: dict):
     import torch
-    from exporter.graphs import graph_module
+    from exporter.graphs import eager_module
     from trainer.checkpoint import load_generator
     torch.set_num_threads(int(spec["threads"]))
     generator, _ = load_generator(Path(spec["run"]), spec.get("which", "best"))
-    module = graph_module(generator, spec["graph"], rewrite=False)
+    module = eager_module(generator, spec["graph"])
     x = torch.from_numpy(feed["sketch"]), torch.from_numpy(feed["mask"])
 
     def run():
