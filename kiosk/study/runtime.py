@@ -44,6 +44,11 @@ class _ConditionBundle(LoadedBundle):
     def garment_id(self) -> str:
         return self.study_name
 
+    def graphs(self) -> tuple[str, ...]:
+        """Study trials show the reference visual, so only the tactile graph is ever needed: the daemon loads,
+        probes and plans with nothing else (a bundle without one falls back to its full graph)."""
+        return ("tactile",) if "tactile" in self.manifest.graphs else ("full",)
+
 
 def bundle_name(sb: StudyBundle) -> str:
     return sb.key
@@ -86,7 +91,7 @@ class DaemonRenderer:
             if pp.graph not in ("tactile", "none"):
                 raise StudyError(f"panel {pp.panel}: the planner chose the {pp.graph} graph; a study trial must run "
                                  "tactile inference only")
-        bad = [f"{p.panel}: {p.notice or p.status}" for p in result.panels if p.status != "ok" or p.texture is None]
+        bad = [f"{p.panel}: {p.notice or p.status}" for p in result.panels if p.status != "ok"]
         if bad:
             raise StudyError("no friction map for " + "; ".join(bad))
         commit = self.daemon.wait_commit(result.device_frame, COMMIT_TIMEOUT_S)
@@ -159,12 +164,15 @@ class StudyRuntime:
     def __init__(self, config: StudyConfig, *, port: int | None = None, control_socket: Path | None = None,
                  device: str | None = None) -> None:
         self.config = config
-        self.log = StudyLog.open(config.log, config.id)
-        self.bundles: StudyBundles | None = None
+        self.bundles = open_study_bundles(config)           # everything checked before anything is written
         self.daemon: StudyDaemon | None = None
         self.service: StudyService | None = None
         try:
-            self.bundles = open_study_bundles(config)
+            self.log = StudyLog.open(config.log, config.id)
+        except BaseException:
+            self.bundles.close()
+            raise
+        try:
             kcfg = kiosk_config_for(config, self.bundles, port=port, control_socket=control_socket, device=device)
             self.daemon = StudyDaemon(kcfg, self.bundles)
             self.daemon.start()
@@ -192,8 +200,7 @@ class StudyRuntime:
             self.service.close()
         if self.daemon is not None:
             self.daemon.stop()
-        if self.bundles is not None:
-            self.bundles.close()
+        self.bundles.close()
         self.log.close()
 
 

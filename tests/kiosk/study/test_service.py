@@ -84,6 +84,9 @@ def test_a_trial_puts_two_tactile_renderings_under_one_reference_visual(running)
         assert _level(trial.left) != _level(trial.right)
         assert page.shown(tr["token"])["ok"]
         assert page.choose(tr["token"], "left")["recorded"]
+    # study mode loads and probes the tactile graphs only: the visual comes from the bundle's reference asset
+    loaded = rt.daemon.status()["last_reload"]["loaded"]
+    assert len(loaded) == 12 and all(list(e["probe"]) == ["tactile"] for e in loaded)
     metrics = page.get_bytes("/metrics")[1].decode()
     assert not re.search(r'vtkiosk_graph_runs_total\{graph="(visual|full)"\} [1-9]', metrics)
 
