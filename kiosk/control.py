@@ -131,7 +131,9 @@ class ControlServer:
         try:
             sock.bind(str(tmp))
             os.chmod(tmp, self.mode)
-            if self._gid is not None:
+            if self._gid is not None and tmp.stat().st_gid != self._gid:
+                # Under vtkiosk.service the folder is setgid vtkiosk-ops, so the socket already has the group and
+                # no chown is needed (the unit's syscall filter refuses chown).
                 os.chown(tmp, -1, self._gid)
             sock.listen(8)
             os.rename(tmp, self.path)

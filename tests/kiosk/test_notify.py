@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import logging
 import os
-import socket
-import time
 import uuid
 
 import pytest
@@ -14,32 +12,7 @@ from hypothesis import strategies as st
 
 from kiosk.health import CheckResult, HealthMonitor
 from kiosk.notify import Notifier, Watchdog, watchdog_interval_s
-
-
-class NotifySocket:
-    """What systemd does: a unix datagram socket that collects sd_notify messages."""
-
-    def __init__(self, address: str):
-        self.address = address
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind("\0" + address[1:] if address.startswith("@") else address)
-        self.sock.settimeout(0.05)
-        self.messages: list[str] = []
-
-    def drain(self, wait_s: float = 0.0) -> list[str]:
-        deadline = time.monotonic() + wait_s
-        while True:
-            try:
-                self.messages.append(self.sock.recv(4096).decode())
-            except TimeoutError:
-                if time.monotonic() >= deadline:
-                    return self.messages
-            else:
-                if wait_s and time.monotonic() >= deadline:
-                    return self.messages
-
-    def close(self) -> None:
-        self.sock.close()
+from tests.kiosk.serve_process import NotifySocket
 
 
 @pytest.fixture
