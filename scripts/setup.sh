@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-apt_pkgs=(libsystemd-dev pkg-config chromium)
+apt_pkgs=(libsystemd-dev pkg-config chromium systemd cage)  # systemd, cage: tests/systemd verify the units
 missing=()
 for p in "${apt_pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
