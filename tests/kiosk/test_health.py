@@ -64,6 +64,21 @@ def test_heartbeat_latency_budget_uses_recent_p95_and_forgets_old_runs():
     assert not hb.check(stale_after_s=5, budget_s=0.1).ok
 
 
+def test_a_single_slow_run_is_not_a_slow_kiosk():
+    clock = FakeClock()
+    hb = Heartbeat(window_s=30, min_samples=5, clock=clock)
+    hb.beat(0.9)  # the first frame after start-up, 9x the budget
+    r = hb.check(stale_after_s=5, budget_s=0.1)
+    assert r.ok and "1 recent run(s)" in r.detail
+    for _ in range(3):
+        hb.beat(0.9)
+    assert hb.check(stale_after_s=5, budget_s=0.1).ok
+    hb.beat(0.9)  # five slow runs: now it is a slow kiosk
+    assert not hb.check(stale_after_s=5, budget_s=0.1).ok
+    with pytest.raises(ValueError):
+        Heartbeat(window=4, min_samples=5)
+
+
 @given(st.lists(st.floats(min_value=-1e9, max_value=1e9), min_size=1, max_size=60), st.floats(0, 100))
 def test_percentile_matches_numpy(values, q):
     assert percentile(values, q) == pytest.approx(float(np.percentile(values, q)), rel=1e-9, abs=1e-6)
