@@ -67,9 +67,16 @@ def expand(name: str, groups: dict[str, list[str]]) -> set[str]:
 
 
 def unit_allow_list() -> list[str]:
-    """SystemCallFilter=@system-service + SystemCallFilter=~@privileged, as in systemd/vtkiosk.service."""
+    """The allow list that systemd/vtkiosk.service's SystemCallFilter= lines give (an allow list, then ~removals)."""
+    from tests.systemd.test_units import UNITS, unit_settings
+
     g = syscall_groups()
-    return sorted(expand("@system-service", g) - expand("@privileged", g))
+    allowed: set[str] = set()
+    for value in unit_settings(UNITS / "vtkiosk.service")["SystemCallFilter"]:
+        deny = value.startswith("~")
+        names = set().union(*(expand(n, g) if n.startswith("@") else {n} for n in value.lstrip("~").split()))
+        allowed = allowed - names if deny else allowed | names
+    return sorted(allowed)
 
 
 def sandbox(allowed: list[str]):
