@@ -35,7 +35,7 @@ from kiosk.config import KioskConfig
 from kiosk.device_output import DeviceOutput
 from kiosk.engine import InferenceError, LoadedBundle, NonFiniteOutput, OutputCache, visual_rgba
 from kiosk.errors import InputError, KioskError
-from kiosk.health import CheckResult, Heartbeat, HealthMonitor, device_check, http_check
+from kiosk.health import CheckResult, Heartbeat, HealthMonitor, device_check, health_metrics, http_check
 from kiosk.manifest import BundleError
 from kiosk.metrics import Registry
 from kiosk.notify import Notifier, Watchdog, watchdog_interval_s
@@ -370,7 +370,7 @@ class KioskDaemon:
         self.add_health_check("server", http_check(self.server.url + "api/ping", timeout_s=1.0))
         self.add_health_check("bundle", self._bundle_check)
         interval = watchdog_interval_s() or h.interval_s
-        self.watchdog = Watchdog(self.notifier, self.health, interval)
+        self.watchdog = Watchdog(self.notifier, self.health, interval, on_report=health_metrics(self.metrics))
         self.watchdog.start()
 
     def _link_health(self):

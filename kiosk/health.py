@@ -209,3 +209,17 @@ def device_check(health: Callable[[], Any], *, max_heartbeat_age_s: float = 2.0)
         return CheckResult(True, "link up" + (f", heartbeat {age * 1e3:.0f} ms ago" if age is not None else ""))
 
     return check
+
+
+def health_metrics(registry) -> Callable[[HealthReport], None]:
+    """A `Watchdog(on_report=...)` hook that exports each round as gauges on a kiosk.metrics.Registry:
+    vtkiosk_health_ok (1 while all checks pass, i.e. while systemd gets pings) and vtkiosk_health_check_ok{check}."""
+    ok = registry.gauge("vtkiosk_health_ok", "1 while every health check passes (systemd gets watchdog pings).")
+    per_check = registry.gauge("vtkiosk_health_check_ok", "1 while this health check passes.", labels=("check",))
+
+    def record(report: HealthReport) -> None:
+        ok.set(1.0 if report.ok else 0.0)
+        for name, result in report.checks.items():
+            per_check.set(1.0 if result.ok else 0.0, check=name)
+
+    return record

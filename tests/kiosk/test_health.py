@@ -14,8 +14,9 @@ from firmware_bridge.config import BridgeConfig, EmulatorConfig
 from firmware_bridge.display import HapticDisplay
 from firmware_bridge.emulator import DeviceEmulator
 from firmware_bridge.transports.emulated import EmulatedTransport
-from kiosk.health import (CheckResult, HealthMonitor, Heartbeat, device_check, http_check, percentile,
-                          status_line)
+from kiosk.health import (CheckResult, HealthMonitor, Heartbeat, device_check, health_metrics, http_check,
+                          percentile, status_line)
+from kiosk.metrics import Registry
 
 
 class FakeClock:
@@ -171,3 +172,17 @@ def test_device_check_follows_a_real_link_through_unplug_and_replug():
         assert check().ok
     finally:
         disp.close()
+
+
+def test_health_rounds_become_gauges():
+    reg = Registry()
+    record = health_metrics(reg)
+    state = {"ok": True}
+    mon = HealthMonitor({"device": lambda: CheckResult(state["ok"], "x"), "server": lambda: CheckResult(True, "y")})
+    record(mon.run())
+    assert "vtkiosk_health_ok 1.0" in reg.render() and 'vtkiosk_health_check_ok{check="device"} 1.0' in reg.render()
+    state["ok"] = False
+    record(mon.run())
+    text = reg.render()
+    assert "vtkiosk_health_ok 0.0" in text and 'vtkiosk_health_check_ok{check="device"} 0.0' in text
+    assert 'vtkiosk_health_check_ok{check="server"} 1.0' in text

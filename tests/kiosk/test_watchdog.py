@@ -193,7 +193,9 @@ def test_daemon_process_pings_only_while_healthy(tmp_path, bundle, hide_systemd)
         assert set(health["checks"]) >= {"inference", "device", "server", "bundle"}
         status, ctype, body = _get(kiosk.url + "metrics")
         assert status == 200 and ctype.startswith("text/plain; version=0.0.4")
-        assert any(f.type == "histogram" for f in text_string_to_metric_families(body))
+        families = {f.name: f for f in text_string_to_metric_families(body)}
+        assert any(f.type == "histogram" for f in families.values())
+        assert families["vtkiosk_health_ok"].samples[0].value == 1.0
 
         # inference hangs -> pings stop for longer than the watchdog period (systemd would restart it)
         assert send_control(ctl, {"op": "debug.hang", "on": True})["hang"] is True
@@ -203,6 +205,7 @@ def test_daemon_process_pings_only_while_healthy(tmp_path, bundle, hide_systemd)
         code, _, body = _get(kiosk.url + "healthz")
         health = json.loads(body)
         assert code == 503 and health["ok"] is False and health["checks"]["inference"]["ok"] is False
+        assert 'vtkiosk_health_check_ok{check="inference"} 0.0' in _get(kiosk.url + "metrics")[2]
         send_control(ctl, {"op": "debug.hang", "on": False})
         t_ok, _ = ns.wait_for(lambda m: m.startswith("STATUS=healthy"), 10, after=t_bad)
         assert ns.wait_for(is_ping, 5, after=t_ok)
