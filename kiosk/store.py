@@ -123,6 +123,7 @@ class BundleStore:
         self.root.mkdir(parents=True, exist_ok=True)
         fd = os.open(self.root / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
         try:
+            self._adopt(self.root / LOCK)
             deadline = time.monotonic() + self.lock_timeout_s
             while True:
                 try:
@@ -164,6 +165,9 @@ class BundleStore:
             return
         st = self.root.stat()
         if st.st_uid == 0 and st.st_gid == 0:
+            return
+        if path.is_symlink() or not path.is_dir():
+            os.lchown(path, st.st_uid, st.st_gid)
             return
         for dirpath, dirs, files in os.walk(path):
             for name in [*dirs, *files]:
@@ -265,6 +269,7 @@ class BundleStore:
         with self._locked():
             incoming = self.root / INCOMING
             incoming.mkdir(exist_ok=True)
+            self._adopt(incoming)
             work = incoming / secrets.token_hex(8)
             work.mkdir(mode=0o750)
             meta_tmp = incoming / f"{work.name}.json"

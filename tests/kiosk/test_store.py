@@ -236,6 +236,24 @@ def test_a_crash_mid_install_leaves_no_half_bundle(tmp_path, bundles, point):
     assert [p.name for p in (root / "denim-shorts").iterdir() if p.name != ".meta"] == [V1]
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="handing files to another user needs root")
+def test_run_as_root_what_it_creates_belongs_to_the_stores_owner(tmp_path, bundles):
+    import pwd
+
+    nobody = pwd.getpwnam("nobody")
+    root = tmp_path / "store"
+    root.mkdir()
+    os.chown(root, nobody.pw_uid, nobody.pw_gid)
+    store = BundleStore(root, bundles["trusted"])
+    store.install(bundles[V1])
+    store.install(bundles[V2])
+    store.activate("denim-shorts", V1)
+    store.activate("denim-shorts", V2)
+    owners = {(p.lstat().st_uid, p.lstat().st_gid) for p in root.rglob("*")}
+    assert owners == {(nobody.pw_uid, nobody.pw_gid)}, sorted(str(p) for p in root.rglob("*")
+                                                             if p.lstat().st_uid != nobody.pw_uid)
+
+
 def test_lock_held_elsewhere_is_a_clear_busy_error(tmp_path, bundles):
     store = BundleStore(tmp_path / "store", bundles["trusted"], lock_timeout_s=0.3)
     store.install(bundles[V1])
