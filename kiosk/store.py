@@ -148,7 +148,10 @@ class BundleStore:
         incoming = self.root / INCOMING
         if incoming.is_dir():
             for p in incoming.iterdir():
-                shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink()
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink()
         for g in self._garments():
             gdir = self.root / g
             keep = {self._link(g, CURRENT), self._link(g, PREVIOUS)}
