@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 from typing import Iterable
@@ -160,17 +161,20 @@ def plot(rep: dict, out: Path, *, title: str | None = None) -> Path:
     fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(comps), 3.6), dpi=150)
     bars = ax.bar(range(len(comps)), rates, color="#4C72B0", width=0.6, yerr=[lo, hi], capsize=4,
                   error_kw={"elinewidth": 1.2, "ecolor": "#222222"})
-    ax.axhline(50, color="#C44E52", linestyle="--", linewidth=1.2, label="chance (50%)")
+    ax.axhline(50, color="#C44E52", linestyle="--", linewidth=1.2)
+    ax.text(len(comps) - 0.45, 50, "chance\n50%", ha="left", va="center", fontsize=7, color="#C44E52",
+            clip_on=False)
     for b, c in zip(bars, comps):
         ax.text(b.get_x() + b.get_width() / 2, 2, f"n={c['n']}", ha="center", va="bottom", fontsize=7, color="white")
         ax.text(b.get_x() + b.get_width() / 2, min(100 * c["wilson95"][1] + 1.5, 101), f"{100 * (c['rate'] or 0):.1f}%",
                 ha="center", va="bottom", fontsize=8)
     ax.set_xticks(range(len(comps)), [f"vs {name}" for name in labels], fontsize=8)
     ax.set_ylim(0, 108)
+    ax.set_xlim(-0.5, len(comps) - 0.5)
     ax.set_ylabel(f"prefer {rep['reference']} (%)")
-    ax.set_title(title or f"Haptic preference for {rep['reference']} ({rep['participants']} participants)",
-                 fontsize=9)
-    ax.legend(loc="lower right", fontsize=7, frameon=False)
+    ax.set_title(textwrap.fill(title or f"Haptic preference for {rep['reference']} ({rep['participants']} "
+                                        "participants)", 60), fontsize=8)
+    ax.set_xlabel("error bars: Wilson 95% intervals", fontsize=7, color="#555555")
     ax.spines[["top", "right"]].set_visible(False)
     fig.tight_layout()
     out = Path(out)

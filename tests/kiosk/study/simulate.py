@@ -151,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         proc.stop()
     rep = report_log(config.log)
+    rep["log"] = os.path.relpath(config.log)
     args.out.mkdir(parents=True, exist_ok=True)
     plot(rep, args.out / "example-preference.png",
          title=f"Simulated study: {args.participants} participants, true rates "

@@ -96,3 +96,14 @@ def test_participant_codes():
     for bad in ("", "Jane Doe", "a" * 33, "../x", "P01\n", None, 7):
         with pytest.raises(ParticipantError, match="a code, not a name"):
             by_pattern.check(bad)
+
+
+def test_the_example_config_is_valid():
+    from kiosk.config import config_from_mapping
+
+    root = Path(__file__).resolve().parents[3]
+    cfg = load_study_config(root / "configs" / "study.example.yaml")
+    assert cfg.reference == "ours" and cfg.comparisons == ("pix2pix", "pix2pixhd", "gaugan")
+    assert cfg.test_garments == 5 and cfg.time_limit_s == 60.0
+    kiosk = config_from_mapping({**cfg.kiosk, "bundles": ["x.vtb"]})
+    assert kiosk.control.group == "vtkiosk-ops"

@@ -33,7 +33,10 @@ def _check_log(config) -> None:
 
 
 def test_sigkill_at_random_moments_loses_and_duplicates_nothing(tmp_path, study_env):
-    cfg_path = write_study(tmp_path, study_env, name="crash", seed=3)
+    root = study_env[0]
+    cfg_path = write_study(tmp_path, study_env, name="crash", seed=3, garments=["g00", "g01", "g02"],
+                           test_garments=2, conditions={c: str(root / "bundles" / c / "{garment}.vtb")
+                                                        for c in ("ours", "pix2pix")})
     config = load_study_config(cfg_path)
     proc = StudyProcess(cfg_path, tmp_path / "proc")
     rng = random.Random(20231001)
@@ -43,7 +46,7 @@ def test_sigkill_at_random_moments_loses_and_duplicates_nothing(tmp_path, study_
     while len(acked) < TRIALS:
         proc.start()
         _check_log(config)
-        killer = threading.Timer(rng.uniform(0.05, 1.2), proc.kill)
+        killer = threading.Timer(rng.uniform(0.05, 2.0), proc.kill)
         killer.start()
         try:
             status = operator(proc.socket, "study.status")
