@@ -24,8 +24,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO_VERSION = "2"  # bump when the recipe below changes in a way the source hash cannot see
 FRAME = (320, 240)
 SIZES = "256,512"
-CODE = ("trainer", "exporter", "kiosk/sketch.py", "kiosk/haptics.py", "kiosk/manifest.py", "kiosk/bundle.py",
-        "kiosk/signature.py", "kiosk/probe.py")
+# What makes the bundle: the whole trainer, the exporter modules `vtkiosk export` uses, the runtime contract.
+CODE = ("trainer", "exporter/__init__.py", "exporter/cli.py", "exporter/export.py", "exporter/graphs.py",
+        "exporter/rewrite.py", "exporter/quantize.py", "exporter/calibration.py", "exporter/accuracy.py",
+        "exporter/bundle_writer.py", "exporter/keys.py", "kiosk/sketch.py", "kiosk/haptics.py", "kiosk/manifest.py",
+        "kiosk/bundle.py", "kiosk/signature.py", "kiosk/probe.py", "kiosk/validate.py")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -48,7 +51,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 def _source_hash(h: "hashlib._Hash") -> None:
     for entry in CODE:
         path = ROOT / entry
-        files = sorted(path.rglob("*.py")) + sorted(path.rglob("*.yaml")) if path.is_dir() else [path]
+        files = sorted(path.rglob("*.py")) + sorted(path.rglob("*.yaml")) if path.is_dir() else \
+            [path] if path.exists() else []
         for f in files:
             if "__pycache__" in f.parts:
                 continue

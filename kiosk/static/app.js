@@ -65,7 +65,8 @@ function redraw() {
     if (!s.length) continue;
     ctx.beginPath();
     ctx.moveTo(s[0][0] - origin[0], s[0][1] - origin[1]);
-    for (const p of s.length > 1 ? s.slice(1) : s) ctx.lineTo(p[0] - origin[0] + (s.length > 1 ? 0 : 0.01), p[1] - origin[1]);
+    if (s.length === 1) ctx.lineTo(s[0][0] - origin[0] + 0.01, s[0][1] - origin[1]);  // a tap is a dot
+    for (const p of s.slice(1)) ctx.lineTo(p[0] - origin[0], p[1] - origin[1]);
     ctx.stroke();
   }
 }
@@ -202,11 +203,11 @@ async function loadReference() {
   state.reference = { img, rect: state.reference ? state.reference.rect : null };
 }
 
-function selectGarment(id) {
+async function selectGarment(id) {
   state.garment = id;
   for (const b of garmentsEl.children) b.setAttribute("aria-checked", String(b.dataset.id === id));
-  if (state.base) loadReference().then(() => render("final"));
-  else render("final");
+  if (state.base) await loadReference();
+  await render("final");
 }
 
 async function loadBundles() {
@@ -223,7 +224,7 @@ async function loadBundles() {
     btn.addEventListener("click", () => selectGarment(b.id));
     garmentsEl.appendChild(btn);
   }
-  if (data.default) selectGarment(data.default);
+  if (data.default) await selectGarment(data.default);  // `ready` resolves after the first (empty) frame
 }
 
 async function pollStatus() {

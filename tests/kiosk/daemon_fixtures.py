@@ -58,3 +58,20 @@ def wait_for(cond, timeout: float = 5.0, step: float = 0.02) -> bool:
             return True
         time.sleep(step)
     return cond()
+
+
+def demo_build(tmp_path_factory, steps: int = 2) -> tuple[Path, Path, str]:
+    """Build (once per test session: `vtkiosk demo` caches it) a real demo bundle with our trainer and exporter,
+    on a short schedule. Returns (bundle, trusted-keys folder, the command's output). VTKIOSK_TEST_DEMO_DIR keeps
+    the build across sessions (for iterating on the page tests)."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    workdir = Path(os.environ.get("VTKIOSK_TEST_DEMO_DIR") or tmp_path_factory.getbasetemp() / "demo-build")
+    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "demo", "--workdir", str(workdir), "--steps", str(steps),
+                           "--build-only"], cwd=root, capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    (bundle,) = sorted((workdir / "bundles").glob("*/demo.vtb"))
+    return bundle, workdir / "trusted-keys", proc.stdout
