@@ -36,7 +36,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "at exactly these")
     p.add_argument("--sign-key", type=Path, default=None, help="Ed25519 private key (vtkiosk keys generate)")
     p.add_argument("--which", choices=("best", "latest"), default="best")
-    p.add_argument("--calibration", choices=("minmax", "percentile", "entropy"), default="minmax")
+    p.add_argument("--calibration", choices=("minmax", "percentile", "entropy"), default="percentile",
+                   help="int8 activation ranges: percentile (99.999th, default: measured best), minmax, entropy")
     p.add_argument("--int8-fp32", type=_islands, default=None, metavar="PARTS",
                    help="int8 only: graph parts kept in fp32, comma-separated from "
                         "pe,first-conv,heads,tactile-branch, or 'none' (default pe,first-conv,heads)")

@@ -39,7 +39,7 @@ class ExportConfig:
     graphs: tuple[str, ...] = GRAPH_KINDS
     calibration_per_size: int = 8
     error_per_size: int = 4
-    calibration_method: str = "minmax"
+    calibration_method: str = "percentile"   # measured best for int8 error (docs/performance.md)
     fp32_islands: tuple[str, ...] = DEFAULT_FP32_ISLANDS   # int8 only: parts kept in fp32 (exporter/quantize.py)
     max_friction_mae: float = 1.0      # uint8 levels; int8 graphs above this are refused unless forced
     force: bool = False
