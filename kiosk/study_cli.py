@@ -34,7 +34,8 @@ def _parser(prog: str) -> argparse.ArgumentParser:
     start = sub.add_parser("start", help="start or resume a participant's session (operator side)")
     start.add_argument("--participant", required=True, help="the participant's code (never a name)")
     start.add_argument("--new-session", action="store_true",
-                       help="start another session for a participant whose last session is complete")
+                       help="start another session for this participant (an unfinished last session is closed "
+                            "as abandoned; its answers stay in the log)")
     _target(start)
     _target(sub.add_parser("status", help="the running study's state"))
     _target(sub.add_parser("stop", help="end the current session early (unanswered trials stay pending)"))

@@ -11,7 +11,6 @@ output into friction maps and puts them on the haptic device. Study mode changes
 """
 from __future__ import annotations
 
-import logging
 import signal
 import sys
 import threading
@@ -23,13 +22,13 @@ import yaml
 from kiosk.config import KioskConfig, config_from_mapping
 from kiosk.daemon import KioskDaemon
 from kiosk.engine import LoadedBundle
+from kiosk.logsetup import configure_logging
 from kiosk.scene import Panel, Scene, SketchInput
 from kiosk.study.bundles import StudyBundle, StudyBundles, open_study_bundles
 from kiosk.study.config import StudyConfig, StudyConfigError, load_study_config
 from kiosk.study.log import StudyLog
 from kiosk.study.service import Rendered, StudyError, StudyService
 
-log = logging.getLogger(__name__)
 COMMIT_TIMEOUT_S = 10.0
 
 
@@ -207,7 +206,7 @@ class StudyRuntime:
 def run_study(config_path: Path, *, port: int | None = None, control_socket: Path | None = None,
               device: str | None = None) -> int:
     config = load_study_config(config_path)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(level="INFO")   # the journal under systemd, else stderr
     runtime = StudyRuntime(config, port=port, control_socket=control_socket, device=device)
     done = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -161,6 +161,7 @@ class StudyService:
                 return self._summary()
             if latest is not None and latest.next_trial() is not None and not new_session:
                 schedule = Schedule.from_json(latest.started["schedule"])
+                self._check_resumable(latest.started, schedule)
                 self._active = _Active(schedule)
                 self.log.append("resume", participant=code, session=latest.session, reason="operator",
                                 at_trial=latest.next_trial(), **self.log.stamp())
@@ -168,9 +169,9 @@ class StudyService:
                 if latest is not None and latest.next_trial() is None and not new_session:
                     raise StudyError(f"participant {code} has completed session {latest.session}; use --new-session "
                                      "to run another")
-                if latest is not None and latest.next_trial() is not None:
-                    raise StudyError(f"participant {code} has an unfinished session {latest.session}; resume it "
-                                     "(without --new-session) first")
+                if latest is not None and latest.next_trial() is not None:   # the operator gives it up
+                    self.log.append("end", participant=code, session=latest.session, reason="abandoned",
+                                    at_trial=latest.next_trial(), **self.log.stamp())
                 session = 1 if latest is None else latest.session + 1
                 schedule = make_schedule(self.config, code, session)
                 self.log.append("session", **session_payload(self.config, schedule, self.identities,
@@ -216,10 +217,29 @@ class StudyService:
         if not candidates:
             return
         s = max(candidates, key=lambda s: max([s.started["seq"]] + [r["seq"] for r in s.responses.values()]))
-        self._active = _Active(Schedule.from_json(s.started["schedule"]))
+        schedule = Schedule.from_json(s.started["schedule"])
+        try:
+            self._check_resumable(s.started, schedule)
+        except StudyError as exc:
+            log.warning("not resuming %s session %s: %s", s.participant, s.session, exc)
+            self._event("resume_impossible", participant=s.participant, session=s.session, detail=str(exc))
+            return
+        self._active = _Active(schedule)
         self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
                         at_trial=s.next_trial(), **self.log.stamp())
         self._present_next()
+
+    def _check_resumable(self, started: dict, schedule: Schedule) -> None:
+        """A stored schedule can only continue with the bundles it was made for (the config may have changed)."""
+        missing = sorted({f"{c}:{t.garment}" for t in schedule.trials for c in (t.left, t.right)
+                          if (c, t.garment) not in self.bundles.items})
+        if missing:
+            raise StudyError(f"session {schedule.session} of {schedule.participant} was scheduled with bundle(s) "
+                             f"this study config no longer has: {', '.join(missing)}; restore them or start a new "
+                             "session (--new-session)")
+        if started.get("config_sha256") != self.config.source_sha256:
+            self._event("config_changed", participant=schedule.participant, session=schedule.session,
+                        detail="the study config differs from the one this session started with")
 
     def _present_next(self) -> None:
         a = self._active

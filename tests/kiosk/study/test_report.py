@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kiosk.study.log import StudyLog
-from kiosk.study.report import StudyReportError, analyse, format_text, plot, report_log
+from kiosk.study.report import StudyReportError, format_text, plot, report_log
 from kiosk.study.stats import (binom_test_two_sided, bootstrap_interval, bradley_terry, cluster_robust_interval,
                                wilson_interval)
 

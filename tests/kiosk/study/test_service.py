@@ -258,3 +258,44 @@ def test_bundles_without_reference_assets_or_for_the_wrong_garment_are_refused(t
     with pytest.raises(StudyBundleError, match="missing/g00.vtb.*no such bundle"):
         open_study_bundles(cfg)
     assert not list(tmp_path.glob("vtkiosk-study-*"))        # nothing left behind
+
+
+def test_a_session_resumes_only_with_the_bundles_it_was_scheduled_with(tmp_path, study_env):
+    root = study_env[0]
+    rt, cfg, page, sock = _runtime(tmp_path, study_env)
+    try:
+        operator(sock, "study.start", participant="P08")
+        tr = page.state()["trial"]
+        page.shown(tr["token"])
+        page.choose(tr["token"], "left")
+    finally:
+        rt.close()
+    # the config loses a condition: the unfinished session cannot continue, and nothing pretends it can
+    rt, cfg, page, sock = _runtime(tmp_path, study_env, conditions={
+        c: str(root / "bundles" / c / "{garment}.vtb") for c in ("ours", "pix2pix")})
+    try:
+        assert operator(sock, "study.status")["active"] is None
+        assert _events(cfg, "resume_impossible")[0]["detail"].startswith("session 1 of P08 was scheduled with")
+        reply = operator(sock, "study.start", participant="P08")
+        assert not reply["ok"] and "pix2pixhd:g0" in reply["error"] and "--new-session" in reply["error"]
+        reply = operator(sock, "study.start", participant="P08", new_session=True)
+        assert reply["ok"] and reply["session"] == 2
+    finally:
+        rt.close()
+    ends = [r for r in read_log(cfg.log).records if r["type"] == "end"]
+    assert [(e["session"], e["reason"], e["at_trial"]) for e in ends] == [(1, "abandoned", 1)]
+    assert len(_events(cfg, "config_changed")) == 0       # the abandoned session was never resumed
+
+
+def test_resuming_under_a_changed_config_is_logged(tmp_path, study_env):
+    rt, cfg, page, sock = _runtime(tmp_path, study_env)
+    try:
+        operator(sock, "study.start", participant="P09")
+    finally:
+        rt.close()
+    rt, cfg, page, sock = _runtime(tmp_path, study_env, time_limit_s=45)
+    try:
+        assert operator(sock, "study.status")["active"]["participant"] == "P09"
+        assert [e["participant"] for e in _events(cfg, "config_changed")] == ["P09"]
+    finally:
+        rt.close()
