@@ -334,14 +334,28 @@ def table(s: dict) -> str:
     return "\n".join(lines)
 
 
+def header(s: dict, bundle: Path | None) -> str:
+    graphs = "; ".join(f"{g}: " + ", ".join(f"{k} {v['precision']} up to "
+                                             f"{max(w for w, _ in v['sizes'])}x{max(h for _, h in v['sizes'])}"
+                                             for k, v in b["graphs"].items()) for g, b in s["bundles"].items())
+    load = os.getloadavg()
+    return (f"Measured {time.strftime('%Y-%m-%d %H:%M')} on {os.cpu_count()} CPUs (load average "
+            f"{load[0]:.1f} at the end), panel 1280x800, {s['finals']} stroke ends and "
+            f"{s['preview']['frames']} previews; bundle {bundle.name if bundle else 'of the running daemon'} "
+            f"({graphs}). Command: `{s['command']}`.")
+
+
 def write_section(doc: Path, body: str) -> None:
-    start, end = f"<!-- section: {SECTION} -->", f"<!-- end section: {SECTION} -->"
+    """Put `body` between the `<!-- e2e table -->` markers inside the document's `e2e` section (the prose around
+    it is written by hand); a document without them gets a new section at its end."""
+    start, end = "<!-- e2e table -->", "<!-- end e2e table -->"
     text = doc.read_text() if doc.exists() else "# Performance\n"
     block = f"{start}\n{body.rstrip()}\n{end}"
     if start in text and end in text:
         text = text[:text.index(start)] + block + text[text.index(end) + len(end):]
     else:
-        text = text.rstrip() + "\n\n" + block + "\n"
+        text = (text.rstrip() + f"\n\n<!-- section: {SECTION} -->\n## Kiosk end to end (vtkiosk bench e2e)\n\n"
+                f"{block}\n<!-- end section: {SECTION} -->\n")
     doc.write_text(text)
 
 
@@ -388,7 +402,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
     summary["command"] = "vtkiosk bench e2e " + " ".join(argv)
     if summary["torch_imported"] is not False:
         raise BenchError("torch was imported in the daemon process; the edge runtime must never load it")
-    text = table(summary)
+    text = header(summary, bundle) + "\n\n" + table(summary)
     print(text)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -66,7 +66,8 @@ class InferenceConfig:
     max_resolution: the longest network-grid side the planner may use (a multiple of 256; also capped by the
     bundle's declared sizes). preview_max_resolution: the same while a stroke is being drawn.
     latency_budget_ms: a new bundle must answer its probe within this, and the inference loop's p95 must stay
-    under it for the kiosk to count as healthy. precisions: graph precisions this kiosk accepts, preferred first.
+    under it for the kiosk to count as healthy. precisions: the graph precisions this kiosk runs (a bundle carries one
+    precision per graph; one with another, e.g. fp16 on a CPU-only kiosk, is refused at load with a clear reason).
     """
 
     threads: int = 2

@@ -40,11 +40,12 @@ from kiosk.manifest import BundleError
 from kiosk.metrics import Registry
 from kiosk.notify import Notifier, Watchdog, watchdog_interval_s
 from kiosk.render import FrictionSource
-from kiosk.scene import PanelPlan, Plan, Planner, Scene, SketchInput
+from kiosk.scene import PanelPlan, Plan, Planner, Scene, SketchInput, choose_graph
 from kiosk.server import KioskServer, Request, Response
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
+RETIRE_GRACE_S = 10.0  # a swapped-out bundle stays open this long for jobs that started on it
 
 
 class BusyError(KioskError):
@@ -125,7 +126,7 @@ class KioskDaemon:
         self.watchdog: Watchdog | None = None
         self.control = None
         self._bundles: dict[str, LoadedBundle] = {}
-        self._retired: list[LoadedBundle] = []
+        self._retired: list[tuple[float, LoadedBundle]] = []  # swapped out: closed after RETIRE_GRACE_S
         self._reload_lock = threading.Lock()
         self._jobs: list[_Job] = []
         self._jobs_cond = threading.Condition()
@@ -240,6 +241,7 @@ class KioskDaemon:
         """Load what should be served beside what is served, probe it, and swap per garment only when it passes;
         a garment whose new bundle fails keeps its old one. Returns what happened, with reasons."""
         with self._reload_lock:
+            self._close_retired()
             report: dict[str, list] = {"swapped": [], "loaded": [], "kept": [], "unchanged": [], "removed": [],
                                        "failed": []}
             current = dict(self._bundles)
@@ -293,7 +295,8 @@ class KioskDaemon:
             self._bundles = merged  # the swap: one reference assignment; jobs in flight keep their snapshot
             for g in removed:
                 report["removed"].append(g)
-            self._retired.extend(current[g] for g in list(new) + removed if g in current)
+            now = time.monotonic()
+            self._retired.extend((now, current[g]) for g in list(new) + removed if g in current)
             result = "swapped" if (report["swapped"] or report["loaded"] or removed) else \
                 "kept" if (report["kept"] or report["failed"]) else "unchanged"
             self.m_reloads.inc(result=result)
@@ -301,6 +304,17 @@ class KioskDaemon:
             self._last_reload = report
             log.info("reload: %s", json.dumps({k: v for k, v in report.items() if v}, default=str))
             return report
+
+    def _close_retired(self) -> None:
+        """Close bundles swapped out long enough ago that no job can still be using them."""
+        now = time.monotonic()
+        keep = []
+        for at, b in self._retired:
+            if now - at >= RETIRE_GRACE_S:
+                b.close()
+            else:
+                keep.append((at, b))
+        self._retired = keep
 
     # -- life cycle ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -351,7 +365,7 @@ class KioskDaemon:
             self._loop_thread.join(timeout=10.0)
             self._loop_thread = None
         self.device.stop()
-        for b in list(self._bundles.values()) + self._retired:
+        for b in list(self._bundles.values()) + [b for _, b in self._retired]:
             b.close()
         self._bundles, self._retired = {}, []
         if self._workdir is not None:
@@ -490,6 +504,11 @@ class KioskDaemon:
                 job = self._jobs.pop(0) if self._jobs else None
             if job is None:
                 self.heartbeat.beat()
+                if self._retired and self._reload_lock.acquire(blocking=False):
+                    try:
+                        self._close_retired()
+                    finally:
+                        self._reload_lock.release()
                 continue
             if self._hang.is_set():
                 with self._jobs_cond:
@@ -511,7 +530,6 @@ class KioskDaemon:
         t_start = time.monotonic()
         bundles = self._bundles  # snapshot: a reload swaps the dict, never mutates it
         plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview)
-        t_planned = time.monotonic()
         frame = next(self._frame_ids)
         timings = {"queue_ms": 1e3 * (t_start - job.received_at), "rasterize_ms": plan.rasterize_ms,
                    "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
@@ -540,16 +558,14 @@ class KioskDaemon:
                 del self._textures[gone]
             self.device.submit(frame, [self._textures[p.id] for p in req.scene.panels if p.id in self._textures])
         # Notices: inference trouble is per job; the device's state is live.
-        for key in [k for k in self._notices if k.startswith("panel:")]:
-            del self._notices[key]
-        self._notices.update(notices)
+        # Replaced, never mutated: HTTP threads read it.
+        self._notices = {**{k: v for k, v in self._notices.items() if not k.startswith("panel:")}, **notices}
         ready = time.monotonic()
         timings["total_ms"] = 1e3 * (ready - job.received_at)
         for stage in ("rasterize", "plan", "inference", "visual"):
             self.m_stage.observe(timings[f"{stage}_ms"] / 1e3, stage=stage)
         self.m_frames.inc(kind="preview" if req.preview else "final")
         self.m_e2e.observe(ready - job.received_at, target="visual")
-        del t_planned
         log.debug("frame %d %s: %s", frame, "preview" if req.preview else "final",
                   "; ".join(p.reason for p in plan.panels), extra={"STAGE_MS": json.dumps(timings)})
         return FrameResult(frame, req.preview, plan, results, timings, job.received_at, ready, device_frame,
@@ -570,8 +586,6 @@ class KioskDaemon:
         missing = tuple(m for m in pp.needs if m not in have)
         if missing:
             self.m_cache.inc(len(missing), result="miss")
-            from kiosk.scene import choose_graph
-
             pp.graph = choose_graph(missing, bundle.graphs())
             try:
                 t0 = time.perf_counter()
