@@ -131,9 +131,10 @@ def fp32_island_nodes(model: onnx.ModelProto, islands: Iterable[str]) -> list[st
 
 
 def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *, method: str = "percentile",
-                  fp32_islands: Iterable[str] = DEFAULT_FP32_ISLANDS) -> Path:
+                  fp32_islands: Iterable[str] = DEFAULT_FP32_ISLANDS, cache: Path | None = None) -> Path:
     """Static QDQ int8: uint8 activations, int8 per-channel weights, ranges from `calibration` sketches; the
-    `fp32_islands` stay float32."""
+    `fp32_islands` stay float32. `cache` (a JSON file) keeps the calibrated ranges of this graph, method and
+    calibration set, so variants that differ only in their islands calibrate once (the int8 study)."""
     if not calibration:
         raise ValueError("int8 quantization needs at least one calibration sketch")
     if method not in CALIBRATION_METHODS:
@@ -154,7 +155,7 @@ def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *, 
         quantize_static(str(pre), str(dst), _Reader(calibration), quant_format=QuantFormat.QDQ,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
                         calibrate_method=CALIBRATION_METHODS[method], nodes_to_exclude=exclude,
-                        extra_options=extra)
+                        extra_options=extra, calibration_cache_path=str(cache) if cache else None)
     return Path(dst)
 
 

@@ -91,3 +91,18 @@ def test_rewrite_only_for_int8_and_recorded(run_dir, tmp_path):
             assert prov["int8_fp32_islands"] == "pe,first-conv,heads" and prov["calibration"].startswith("percentile")
         else:
             assert prov["rewrite"] == "none" and "int8_fp32_islands" not in prov
+
+
+def test_int8_study_table_and_json(run_dir, tmp_path, capsys):
+    from exporter.int8_study import main
+    out = tmp_path / "study.json"
+    assert main(["--run", str(run_dir), "--sizes", "256", "--variants", "minmax:;percentile:pe,heads",
+                 "--per-size", "2", "--error-sketches", "1", "--timing-size", "256", "--rounds", "1",
+                 "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "| percentile:pe,heads | 256x256 |" in text and "x fp32" in text
+    import json
+    res = json.loads(out.read_text())
+    assert [r["fp32_islands"] for r in res["rows"]] == ["none", "pe,heads"]
+    assert all(np.isfinite(r["friction_mae_levels"]) and r["tactile_mae"] > 0 for r in res["rows"])
+    assert set(res["timing_ms"]) == {"fp32", "minmax:", "percentile:pe,heads"}
