@@ -177,9 +177,10 @@ def _proc_mem(pid: int) -> tuple[float, float]:
 
 
 @contextmanager
-def daemon_process(bundle: Path, trusted: Path | None, allow_unsigned: bool):
+def daemon_process(bundle: Path, trusted: Path | None, allow_unsigned: bool, config: Path | None = None):
     cmd = [sys.executable, "-m", "vtkiosk", "serve", "--bundle", str(bundle), "--device", "emulated", "--port", "0",
            "--log-level", "WARNING"]
+    cmd += ["--config", str(config)] if config else []
     cmd += ["--trusted-keys", str(trusted)] if trusted else []
     cmd += ["--allow-unsigned"] if allow_unsigned else []
     env = {k: v for k, v in os.environ.items() if k != "NOTIFY_SOCKET"}
@@ -367,6 +368,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
     p.add_argument("--allow-unsigned", action="store_true")
     p.add_argument("--garment", default=None, help="garment id (default: the daemon's first)")
     p.add_argument("--repeats", type=int, default=2, help="times the three drawing sessions are replayed")
+    p.add_argument("--max-resolution", type=int, default=None,
+                   help="the daemon's inference.max_resolution (default: the config default, 512)")
     p.add_argument("--incremental", action="store_true", help="also measure window-only recomputation error")
     p.add_argument("--json", type=Path, default=None, help="write all numbers here")
     p.add_argument("--doc", type=Path, default=None, help="write the table into this markdown file's e2e section")
@@ -394,8 +397,17 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
     if args.url:
         summary = run(args.url, None)
     else:
-        with daemon_process(bundle, trusted, args.allow_unsigned) as (url, pid):
-            summary = run(url, pid)
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="vtkiosk-bench-") as tmp:
+            config = None
+            if args.max_resolution:
+                config = Path(tmp) / "kiosk.yaml"
+                config.write_text(json.dumps({"bundles": [str(bundle.resolve())],
+                                              "inference": {"max_resolution": args.max_resolution,
+                                                            "preview_max_resolution": min(256, args.max_resolution)}}))
+            with daemon_process(bundle, trusted, args.allow_unsigned, config) as (url, pid):
+                summary = run(url, pid)
     if args.incremental and bundle is not None:
         summary["incremental"] = measure_incremental(bundle, trusted, args.allow_unsigned)
     summary["wall_s"] = time.perf_counter() - t0
