@@ -27,15 +27,23 @@ from kiosk.sketch import MAX_POINTS
 
 MAX_STROKES = 2000
 MAX_COORD = 1e6
-MODES = ("preview", "final")
+MODES = ("preview", "final", "refine")
 
 
 @dataclass(frozen=True)
 class RenderRequest:
+    """mode: `preview` (while drawing: visual only, preview resolution), `final` (stroke end: everything; at the
+    preview resolution first when the daemon refines, answering `refine: true`), `refine` (everything at full
+    resolution), `full` (everything at full resolution in one step: the study's show())."""
+
     scene: Scene
     sketches: dict[str, SketchInput]
-    preview: bool
+    mode: str
     client: str
+
+    @property
+    def preview(self) -> bool:
+        return self.mode == "preview"
 
 
 def _int(v: Any, what: str, lo: int, hi: int) -> int:
@@ -148,11 +156,11 @@ def parse_render_request(doc: Any) -> RenderRequest:
         if unknown:
             raise InputError(f"sketches for unknown panel(s): {', '.join(map(str, unknown))}")
         sketches = {k: _sketch(v, f"sketches.{k}") for k, v in sk.items()}
-        return RenderRequest(scene, sketches, mode == "preview", client)
+        return RenderRequest(scene, sketches, mode, client)
     _only(doc, {"garment", "panel", "screen", "strokes", "base", "mode", "client"}, "the render request")
     garment = _str(doc.get("garment"), "garment")
     rect = _rect(doc.get("panel"), "panel")
     screen = _screen(doc.get("screen", [rect[0] + rect[2], rect[1] + rect[3]]))
     sketch = _sketch({k: doc[k] for k in ("strokes", "base") if k in doc}, "the request")
     panel = Panel("main", rect, garment)
-    return RenderRequest(Scene((panel,), screen), {"main": sketch}, mode == "preview", client)
+    return RenderRequest(Scene((panel,), screen), {"main": sketch}, mode, client)

@@ -66,7 +66,8 @@ class InferenceConfig:
     max_resolution: the longest network-grid side the planner may use (a multiple of 256; also capped by the
     bundle's declared sizes). preview_max_resolution: the same while a stroke is being drawn.
     latency_budget_ms: a new bundle must answer its probe within this, and the inference loop's p95 must stay
-    under it for the kiosk to count as healthy. precisions: the graph precisions this kiosk runs (a bundle carries one
+    under it for the kiosk to count as healthy. refine: answer a stroke end first at the preview resolution (visual
+    and friction), then at full resolution (the page asks for the refinement at once). precisions: the graph precisions this kiosk runs (a bundle carries one
     precision per graph; one with another, e.g. fp16 on a CPU-only kiosk, is refused at load with a clear reason).
     """
 
@@ -78,6 +79,7 @@ class InferenceConfig:
     preview_max_resolution: int = 256
     margin_px: int = 16
     cache_mb: int = 64
+    refine: bool = True
 
     def __post_init__(self) -> None:
         _check(1 <= self.threads <= 64, "inference.threads must be an integer from 1 to 64")

@@ -77,7 +77,7 @@ class FrameResult:
     """What one render produced. `device_frame` is the frame id whose commit `wait_commit` reports."""
 
     frame: int
-    preview: bool
+    mode: str
     plan: Plan
     panels: list[PanelResult]
     timings: dict[str, float]
@@ -87,7 +87,8 @@ class FrameResult:
     notices: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return {"frame": self.frame, "preview": self.preview, "plan": self.plan.to_json(),
+        return {"frame": self.frame, "mode": self.mode, "preview": self.mode == "preview",
+                "refine": self.plan.refinable, "plan": self.plan.to_json(),
                 "panels": [p.to_json() for p in self.panels], "timings": {k: round(v, 3) for k, v in
                                                                           self.timings.items()},
                 "received_at": self.received_at, "ready_at": self.ready_at, "device_frame": self.device_frame,
@@ -457,9 +458,10 @@ class KioskDaemon:
     # -- rendering -----------------------------------------------------------------------------------------------
     def show(self, scene: Scene, sketches: dict[str, SketchInput] | None = None, *, preview: bool = False,
              client: str = "api", timeout_s: float | None = None) -> FrameResult:
-        """Render a scene (what the page and the study call): plan, infer, put the friction frame on the device.
-        Returns when the visual is ready; `wait_commit(result.device_frame)` waits for the device."""
-        req = RenderRequest(scene, dict(sketches or {}), preview, client)
+        """Render a scene (what the study calls): plan, infer at full resolution in one step, put the friction
+        frame on the device. Returns when the visual is ready; `wait_commit(result.device_frame)` waits for the
+        device."""
+        req = RenderRequest(scene, dict(sketches or {}), "preview" if preview else "full", client)
         return self._submit(req, time.monotonic(), timeout_s)
 
     def _submit(self, req: RenderRequest, received_at: float, timeout_s: float | None = None) -> FrameResult:
@@ -467,12 +469,13 @@ class KioskDaemon:
             raise BusyError("the kiosk is not running")
         job = _Job(req, received_at)
         with self._jobs_cond:
-            if req.preview:  # latest wins: a newer preview replaces a queued one from the same client
-                for old in self._jobs:
-                    if old.request.preview and old.request.client == req.client:
-                        old.superseded = True
-                        old.done.set()
-                self._jobs = [j for j in self._jobs if not j.superseded]
+            # Latest wins: a newer request from the same client replaces its queued previews and refinements
+            # (a stroke end is never dropped).
+            for old in self._jobs:
+                if old.request.mode in ("preview", "refine") and old.request.client == req.client:
+                    old.superseded = True
+                    old.done.set()
+            self._jobs = [j for j in self._jobs if not j.superseded]
             self._jobs.append(job)
             self._jobs_cond.notify_all()
         timeout = self.config.server.request_timeout_s if timeout_s is None else timeout_s
@@ -529,7 +532,8 @@ class KioskDaemon:
         req = job.request
         t_start = time.monotonic()
         bundles = self._bundles  # snapshot: a reload swaps the dict, never mutates it
-        plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview)
+        quick = req.mode == "final" and self.config.inference.refine
+        plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview, quick=quick)
         frame = next(self._frame_ids)
         timings = {"queue_ms": 1e3 * (t_start - job.received_at), "rasterize_ms": plan.rasterize_ms,
                    "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
@@ -564,11 +568,11 @@ class KioskDaemon:
         timings["total_ms"] = 1e3 * (ready - job.received_at)
         for stage in ("rasterize", "plan", "inference", "visual"):
             self.m_stage.observe(timings[f"{stage}_ms"] / 1e3, stage=stage)
-        self.m_frames.inc(kind="preview" if req.preview else "final")
+        self.m_frames.inc(kind=req.mode)
         self.m_e2e.observe(ready - job.received_at, target="visual")
-        log.debug("frame %d %s: %s", frame, "preview" if req.preview else "final",
+        log.debug("frame %d %s: %s", frame, req.mode,
                   "; ".join(p.reason for p in plan.panels), extra={"STAGE_MS": json.dumps(timings)})
-        return FrameResult(frame, req.preview, plan, results, timings, job.received_at, ready, device_frame,
+        return FrameResult(frame, req.mode, plan, results, timings, job.received_at, ready, device_frame,
                            self.notices())
 
     def _render_panel(self, pp: PanelPlan, bundle: LoadedBundle, preview: bool, timings: dict,
@@ -711,7 +715,7 @@ class KioskDaemon:
 
 
 class _Superseded(Exception):
-    """A preview replaced by a newer one before it ran."""
+    """A preview or refinement replaced by a newer request before it ran."""
 
 
 class _Closed:

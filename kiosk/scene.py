@@ -11,9 +11,10 @@ turns a scene plus the panels' sketches into the work, per panel:
 - region: the object's bounding box (filled outer contour, `kiosk.sketch.object_mask`, found on a coarse raster of
   the panel) plus `margin_px`, rounded so the network grid is a multiple of 256 (every exported graph needs that).
 - resolution: the panel's own pixels (scale <= 1: never more than the screen shows), capped by the bundle's
-  largest declared size and `inference.max_resolution` (`preview_max_resolution` while a stroke is drawn). A grid
-  side is rounded down to a multiple of 256 when that costs at most `MAX_ROUNDING_LOSS` of linear resolution,
-  else up (the region then grows with background).
+  largest declared size and `inference.max_resolution` (`preview_max_resolution` while a stroke is drawn, and for
+  the quick first answer at stroke end, which a full-resolution refinement follows). A grid side is rounded down to
+  a multiple of 256 when that costs at most `MAX_ROUNDING_LOSS` of linear resolution, else up (the region then
+  grows with background).
 - reuse: the cache key is the network input's content (sketch and mask bytes at the grid) + grid + bundle +
   modality; the region's position on screen is not part of it because the network input does not depend on it.
 
@@ -157,6 +158,7 @@ class PanelPlan:
     placement: Placement | None = None
     computed_pixels: int = 0
     naive_pixels: int = 0
+    refine_grid: tuple[int, int] | None = None  # quick plans: the grid a full-resolution plan would use
     inputs: NetworkInput | None = field(default=None, repr=False)
     mask: np.ndarray | None = field(default=None, repr=False)
 
@@ -171,15 +173,22 @@ class PanelPlan:
                 "grid": list(self.grid) if self.grid else None, "scale": round(self.scale, 4),
                 "cache_key": self.cache_key, "reason": self.reason, "clip": list(self.clip),
                 "placement": self.placement.to_json() if self.placement else None,
-                "computed_pixels": self.computed_pixels, "naive_pixels": self.naive_pixels}
+                "computed_pixels": self.computed_pixels, "naive_pixels": self.naive_pixels,
+                "refine_grid": list(self.refine_grid) if self.refine_grid else None}
 
 
 @dataclass
 class Plan:
     panels: list[PanelPlan]
     preview: bool
+    quick: bool = False
     rasterize_ms: float = 0.0
     plan_ms: float = 0.0
+
+    @property
+    def refinable(self) -> bool:
+        """A quick plan whose result a full-resolution plan would improve."""
+        return self.quick and any(p.refine_grid is not None and p.refine_grid != p.grid for p in self.panels)
 
     @property
     def computed_pixels(self) -> int:
@@ -190,7 +199,8 @@ class Plan:
         return sum(p.naive_pixels for p in self.panels)
 
     def to_json(self) -> dict:
-        return {"preview": self.preview, "panels": [p.to_json() for p in self.panels],
+        return {"preview": self.preview, "quick": self.quick, "refinable": self.refinable,
+                "panels": [p.to_json() for p in self.panels],
                 "computed_pixels": self.computed_pixels, "naive_pixels": self.naive_pixels,
                 "rasterize_ms": round(self.rasterize_ms, 3), "plan_ms": round(self.plan_ms, 3)}
 
@@ -346,8 +356,10 @@ class Planner:
         self.cached = cached or (lambda key, modality: False)
 
     def plan(self, scene: Scene, sketches: Mapping[str, SketchInput], bundles: Mapping[str, BundleInfo], *,
-             preview: bool = False) -> Plan:
-        out = Plan([], preview)
+             preview: bool = False, quick: bool = False) -> Plan:
+        """`preview`: while drawing (visual only, preview resolution). `quick`: every modality, but at the preview
+        resolution (the first answer at stroke end; `refine_grid` says what a full-resolution plan would use)."""
+        out = Plan([], preview, quick and not preview)
         for panel in scene.panels:
             bundle = bundles.get(panel.bundle)
             if bundle is None:
@@ -355,7 +367,7 @@ class Planner:
             sketch = sketches.get(panel.id, SketchInput(base=panel.sketch == "reference"))
             if panel.sketch == "reference":
                 sketch = SketchInput(sketch.strokes, base=True)
-            out.panels.append(self._plan_panel(panel, scene, sketch, bundle, preview, out))
+            out.panels.append(self._plan_panel(panel, scene, sketch, bundle, preview, out.quick, out))
         return out
 
     def _cap(self, bundle: BundleInfo, kind: str, preview: bool) -> tuple[int, int]:
@@ -365,7 +377,7 @@ class Planner:
                 max(MULTIPLE, min(bh, limit) // MULTIPLE * MULTIPLE))
 
     def _plan_panel(self, panel: Panel, scene: Scene, sketch: SketchInput, bundle: BundleInfo, preview: bool,
-                    acc: Plan) -> PanelPlan:
+                    quick: bool, acc: Plan) -> PanelPlan:
         t0 = time.perf_counter()
         sw, sh = scene.screen
         px, py, pw, ph = panel.rect
@@ -414,7 +426,9 @@ class Planner:
         x1, y1 = ax + box[2] / k + m, ay + box[3] / k + m
         # 2. Graph: what is needed and not cached. 3. Grid and region.
         kind0 = choose_graph(needs, bundle.graphs())
-        grid, scale = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, preview))
+        grid, scale = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, preview or quick))
+        if quick:
+            pp.refine_grid = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, False))[0]
         rw, rh = round(grid[0] / scale), round(grid[1] / scale)
         region = place_region((x0, y0, x1, y1), (rw, rh), clip)
         t = Transform(region[0], region[1], grid[0] / rw, grid[1] / rh, grid)

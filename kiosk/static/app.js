@@ -28,7 +28,7 @@ const state = {
   previewInFlight: false, dirty: false,
   requestNotice: null, serverNotices: [],
 };
-const stats = { previews: [], finals: [], errors: 0 };
+const stats = { previews: [], finals: [], refines: [], errors: 0 };
 const api = { state, stats, shown: null, lastMeta: null, ready: null };
 window.vtkiosk = api;
 
@@ -128,12 +128,16 @@ async function render(mode) {
   showNotices();
   redraw();
   const ms = performance.now() - t0;
-  (meta.preview ? stats.previews : stats.finals).push({ at: performance.now(), ms, frame: meta.frame });
+  ({ preview: stats.previews, final: stats.finals, refine: stats.refines })[meta.mode]
+    .push({ at: performance.now(), ms, frame: meta.frame });
   api.lastMeta = meta;
   if (!meta.preview) {
-    api.shown = { frame: meta.frame, device_frame: meta.device_frame, status: p.status,
+    api.shown = { frame: meta.frame, mode: meta.mode, device_frame: meta.device_frame, status: p.status,
       visual: state.visual ? state.visual.rect : null, friction: p.friction ? p.friction.rect : null, panel };
   }
+  // The stroke end was answered quickly at the preview resolution: ask for the full resolution now, unless the
+  // finger is already drawing again (the next stroke end will).
+  if (meta.refine && meta.mode === "final" && !state.current && seq === state.seq) render("refine");
 }
 
 function pumpPreview() {

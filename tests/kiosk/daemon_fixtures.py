@@ -45,8 +45,8 @@ def render(d: KioskDaemon, strokes=BOX, *, garment="denim-shorts", mode="final",
            base=False, client="test"):
     body = {"garment": garment, "panel": dict(zip("xywh", panel)), "screen": [1280, 800], "strokes": strokes,
             "base": base, "mode": mode, "client": client}
-    status, data, _ = http(d.server.url + "api/render", body)
-    if status != 200:
+    status, data, ctype = http(d.server.url + "api/render", body)
+    if status != 200 or ctype.startswith("application/json"):  # an error, or {"superseded": true}
         return status, json.loads(data), {}
     return status, *parse_frame(data)
 

@@ -46,8 +46,13 @@ def device_frame(d: KioskDaemon) -> np.ndarray:
 
 
 def test_friction_lands_exactly_under_the_visual(daemon):
+    # The stroke end is answered quickly at the preview resolution, then refined at full resolution.
     status, meta, visuals = render(daemon)
-    assert status == 200
+    assert status == 200 and meta["mode"] == "final" and meta["refine"] and meta["plan"]["quick"]
+    assert visuals["main"].shape == (256, 256, 4) and meta["plan"]["panels"][0]["refine_grid"] == [512, 512]
+    assert daemon.wait_commit(meta["device_frame"], 5.0).status == "committed"
+    status, meta, visuals = render(daemon, mode="refine")
+    assert status == 200 and not meta["refine"]
     (p,) = meta["panels"]
     assert p["status"] == "ok" and meta["plan"]["panels"][0]["graph"] == "full"
     x, y, w, h = p["visual"]["rect"]
@@ -71,6 +76,46 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     # The visual's alpha is the object mask: opaque inside the outline, transparent outside.
     alpha = visuals["main"][..., 3]
     assert alpha[256, 256] == 255 and alpha[2, 2] == 0
+
+
+def test_without_refinement_a_stroke_end_is_answered_at_full_resolution(bundle):
+    path, trusted = bundle
+    d = start_daemon([path], trusted, inference={"refine": False})
+    try:
+        status, meta, visuals = render(d)
+        assert not meta["refine"] and not meta["plan"]["quick"] and visuals["main"].shape == (512, 512, 4)
+    finally:
+        d.stop()
+
+
+def test_a_new_request_supersedes_queued_previews_and_refinements(daemon):
+    import threading
+
+    daemon.handle_control({"op": "debug.hang", "on": True})  # hold the loop so requests queue up
+    answers, threads = {}, []
+
+    def send(name, mode, client="test", strokes=BOX):
+        def go():
+            answers[name] = render(daemon, strokes, mode=mode, client=client)
+        t = threading.Thread(target=go)
+        t.start()
+        threads.append(t)
+
+    try:
+        send("other", "preview", client="another-page")  # another client's preview is not touched
+        send("preview", "preview")
+        assert wait_for(lambda: len(daemon._jobs) == 2, 5.0)
+        send("refine", "refine")  # replaces the queued preview of the same client
+        assert wait_for(lambda: "preview" in answers and len(daemon._jobs) == 2, 5.0)
+        send("final", "final", strokes=BOX + [[[400, 300], [600, 500]]])  # replaces the queued refinement
+        assert wait_for(lambda: "refine" in answers and len(daemon._jobs) == 2, 5.0)
+    finally:
+        daemon.handle_control({"op": "debug.hang", "on": False})
+    for t in threads:
+        t.join(10)
+    assert answers["preview"][1] == {"superseded": True} == answers["refine"][1]
+    assert answers["final"][0] == 200 and answers["final"][1]["mode"] == "final"
+    assert answers["other"][0] == 200 and answers["other"][1]["mode"] == "preview"
 
 
 def test_unchanged_sketch_costs_no_inference_and_undo_hits_the_cache(daemon):

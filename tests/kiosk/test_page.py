@@ -70,7 +70,10 @@ def finals(page) -> int:
 
 
 def wait_final(page, before: int) -> dict:
+    """Wait for the stroke end's answer and, when the daemon answered quickly, for its full-resolution refinement."""
     page.wait_for_function(f"window.vtkiosk.stats.finals.length > {before}", timeout=30000)
+    page.wait_for_function("(() => { const m = window.vtkiosk.lastMeta;"
+                           " return m.mode === 'refine' || (m.mode === 'final' && !m.refine); })()", timeout=30000)
     return page.evaluate("window.vtkiosk.shown")
 
 
@@ -87,8 +90,9 @@ def test_drawing_shows_the_garment_and_the_device_feels_it_underneath(page, daem
     n = finals(page)
     draw(page, OUTLINE_B)
     shown = wait_final(page, n)
-    assert shown["status"] == "ok"
+    assert shown["status"] == "ok" and shown["mode"] == "refine"
     assert page.evaluate("window.vtkiosk.stats.previews.length") > 0  # live preview while drawing
+    assert page.evaluate("window.vtkiosk.stats.refines.length") == 1  # quick answer, then full resolution
     meta = page.evaluate("window.vtkiosk.lastMeta")
     assert meta["plan"]["panels"][0]["graph"] == "full" and meta["plan"]["panels"][0]["bundle"] == "denim-shorts"
     x, y, w, h = shown["visual"]
