@@ -45,7 +45,8 @@ from kiosk.server import KioskServer, Request, Response
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
-RETIRE_GRACE_S = 10.0  # a swapped-out bundle stays open this long for jobs that started on it
+RETIRE_GRACE_S = 10.0
+REFINE_WAIT_S = 0.25  # longest a refinement waits for the quick answer's upload  # a swapped-out bundle stays open this long for jobs that started on it
 
 
 class BusyError(KioskError):
@@ -518,6 +519,10 @@ class KioskDaemon:
                     self._jobs.insert(0, job)
                 continue
             t0 = time.monotonic()
+            if job.request.mode == "refine":
+                # Let the quick answer's friction frame reach the finger first: on two cores a refinement
+                # computed during its upload would delay it.
+                self.device.wait_idle(REFINE_WAIT_S)
             try:
                 job.result = self._render(job)
             except BaseException as exc:  # noqa: BLE001 - the loop must survive anything one job does

@@ -50,6 +50,7 @@ class DeviceOutput:
         self._applied_panels: set[str] = set()
         self._commits: OrderedDict[int, Commit] = OrderedDict()
         self._pending_since_down: int | None = None
+        self._busy = False
         self._opened = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -133,6 +134,17 @@ class DeviceOutput:
                     return c
                 self._cond.wait(left)
 
+    def wait_idle(self, timeout_s: float) -> bool:
+        """Block until no frame is waiting or uploading (or the timeout). True when idle."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._busy or (self._wanted is not None and self._opened):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+            return True
+
     def _run(self) -> None:
         interval = max(0.05, self.config.reconnect_interval_s)
         while not self._stop.is_set():
@@ -140,6 +152,7 @@ class DeviceOutput:
                 if self._wanted is None:
                     self._cond.wait(interval)
                 job, self._wanted = self._wanted, None
+                self._busy = job is not None
             if self._stop.is_set():
                 return
             if not self._opened and not self._try_open():
@@ -152,7 +165,12 @@ class DeviceOutput:
             if job is None:
                 self._check_recovered()
                 continue
-            self._apply(*job)
+            try:
+                self._apply(*job)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._cond.notify_all()
 
     def _keep_for_later(self, job: tuple[int, list[FrictionSource]]) -> None:
         """A frame that could not be sent because the device is absent: sent once it opens."""

@@ -186,3 +186,19 @@ def test_panel_and_scene_validation():
         Panel("a", (0, 0, 0, 10), "g")
     with pytest.raises(InputError, match="unique"):
         Scene((Panel("a", (0, 0, 10, 10), "g"), Panel("a", (0, 0, 10, 10), "g")), SCREEN)
+
+
+def test_large_outline_gaps_are_closed_by_the_coarse_mask(bundle):
+    """A 30 px gap (a finger lifted early) closes on the coarse raster; at the grid only small gaps are closed
+    (bounded cost), so the coarse mask is carried to the grid."""
+    gap = [[(330, 200), (800, 200), (800, 600), (300, 600), (300, 200)]]  # 30 px open along the top
+    p = Planner().plan(Scene((main_panel(),), SCREEN), {"main": strokes(gap)}, {"denim-shorts": bundle}).panels[0]
+    assert p.graph == "full" and p.mask.any()
+    x, y, w, h = p.region
+    gx, gy = (550 - x) * p.grid[0] / w, (400 - y) * p.grid[1] / h  # the box's centre, in grid pixels
+    assert p.mask[int(gy), int(gx)] and not p.mask[2, 2]
+    from kiosk.scene import FINE_MAX_GAP
+    from kiosk.sketch import object_mask
+
+    fine = render_sketch(strokes(gap), Transform(x, y, p.grid[0] / w, p.grid[1] / h, p.grid), None, None)
+    assert not object_mask(fine, max_gap_px=FINE_MAX_GAP).any()  # so the mask above is the coarse one, carried
