@@ -73,6 +73,8 @@ class Results:
     preview_ms: list[float] = field(default_factory=list)
     drawing_s: float = 0.0
     stroke_fps: list[float] = field(default_factory=list)
+    garment_previews: int = 0   # previews that showed a synthesised garment (not "no closed outline yet")
+    garment_drawing_s: float = 0.0
 
 
 class Client:
@@ -120,7 +122,7 @@ def replay(client: Client, garment: str, sess: Session, res: Results, panel=(0, 
             pts = action.stroke
             t0 = time.monotonic()
             duration = float(pts[-1, 2]) / 1e3
-            n = 0
+            n = n_ok = 0
             while True:  # the page: one preview in flight, each with the points drawn so far
                 elapsed = time.monotonic() - t0
                 if elapsed >= duration:
@@ -133,11 +135,16 @@ def replay(client: Client, garment: str, sess: Session, res: Results, panel=(0, 
                     raise BenchError(f"preview failed: HTTP {status}: {data[:200]!r}")
                 res.preview_ms.append(1e3 * (time.monotonic() - ts))
                 n += 1
+                if data[:1] != b"{" and _frame(data)["panels"][0]["status"] == "ok":
+                    n_ok += 1
             time.sleep(max(0.0, duration - (time.monotonic() - t0)))
             t_stroke_end = t0 + duration  # a preview still in flight delays the stroke end's answer: counted
             res.previews += n
             res.drawing_s += duration
             res.stroke_fps.append(n / duration if duration > 0 else 0.0)
+            if n_ok:
+                res.garment_previews += n
+                res.garment_drawing_s += duration
             strokes.append(pts[:, :2].tolist())
         elif action.kind == "undo":
             strokes.pop()
@@ -306,6 +313,8 @@ def summarize(res: Results, status: dict, mem: tuple[float, float] | None) -> di
            "visual_ms_with_inference": _stats([f.visual_ms for f in work]),
            "friction_ms_with_inference": _stats([f.friction_ms for f in work if f.friction_ms is not None]),
            "stages_ms": stages, "preview": {"frames": res.previews, "drawing_s": res.drawing_s, "fps": fps,
+                                            "garment_fps": res.garment_previews / res.garment_drawing_s
+                                            if res.garment_drawing_s else 0.0,
                                             "min_stroke_fps": min(res.stroke_fps) if res.stroke_fps else 0.0,
                                             "latency_ms": _stats(res.preview_ms)},
            "grids": sorted({f"{f.graph} {f.grid[0]}x{f.grid[1]}" for f in work if f.grid}),
@@ -317,8 +326,9 @@ def summarize(res: Results, status: dict, mem: tuple[float, float] | None) -> di
            "rss_mb": mem[0] if mem else status.get("rss_bytes", 0) / 2**20,
            "peak_rss_mb": mem[1] if mem else None}
     p95 = max(out["visual_ms"]["p95"], out["friction_ms"]["p95"])
+    worst = out["preview"]["min_stroke_fps"]  # judged on the slowest stroke, not the average
     out["goals"] = {"p95_ms": {"goal": GOALS["p95_ms"], "got": p95, "met": p95 <= GOALS["p95_ms"]},
-                    "preview_fps": {"goal": GOALS["preview_fps"], "got": fps, "met": fps >= GOALS["preview_fps"]},
+                    "preview_fps": {"goal": GOALS["preview_fps"], "got": worst, "met": worst >= GOALS["preview_fps"]},
                     "rss_mb": {"goal": GOALS["rss_mb"], "got": out["peak_rss_mb"] or out["rss_mb"],
                                "met": (out["peak_rss_mb"] or out["rss_mb"]) <= GOALS["rss_mb"]},
                     "no_torch": {"met": out["torch_imported"] is False}}
@@ -345,8 +355,9 @@ def table(s: dict) -> str:
                 f"| {f(pv['latency_ms']['p95'])} | {f(pv['latency_ms']['max'])} |")
     g = s["goals"]
     lines = ["\n".join(rows), "",
-             f"- preview: {pv['fps']:.1f} frames/s while drawing (slowest stroke {pv['min_stroke_fps']:.1f}); "
-             f"goal >= {GOALS['preview_fps']:.0f}: {'met' if g['preview_fps']['met'] else 'MISSED'}",
+             f"- preview: {pv['fps']:.1f} frames/s while drawing, {pv['garment_fps']:.1f} on strokes that showed a "
+             f"garment, {pv['min_stroke_fps']:.1f} on the slowest stroke; goal >= {GOALS['preview_fps']:.0f} "
+             f"(slowest stroke): {'met' if g['preview_fps']['met'] else 'MISSED'}",
              f"- p95 end to end (first answer): {g['p95_ms']['got']:.1f} ms (worse of visual and friction); goal <= "
              f"{GOALS['p95_ms']:.0f}: {'met' if g['p95_ms']['met'] else 'MISSED'}",
              f"- daemon RSS: {s['rss_mb']:.0f} MiB now, {f(s['peak_rss_mb'])} MiB peak; goal <= "
