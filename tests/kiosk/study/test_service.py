@@ -80,6 +80,19 @@ def test_a_trial_puts_two_tactile_renderings_under_one_reference_visual(running)
             assert felt.size > 0.2 * region.size
             want = _level(trial.condition_on(p["side"]))
             assert abs(int(np.median(felt)) - want) <= 1, (p["side"], want)
+            # ... and exactly under the garment as the page draws it: the reference mask at the panel's placement
+            pl = p["placement"]
+            mask = rt.bundles.get("ours", trial.garment).bundle.asset("mask").astype(np.uint8)
+            warp = np.array([[pl["scale"], 0, pl["x"]], [0, pl["scale"], pl["y"]]])
+            placed = cv2.warpAffine(mask, warp, (frame.shape[1], frame.shape[0]), flags=cv2.INTER_NEAREST) > 0
+            felt_mask, drawn = region > 0, placed[y:y + h, x:x + w].astype(np.uint8)
+            # tolerance: three network-grid pixels in screen pixels (the map is resampled from a 256 grid here, and
+            # the network's mask is the filled sketch outline, which includes the line's width)
+            grid_scale = next(q["scale"] for q in plan["plan"]["panels"] if q["panel"] == p["side"])
+            tol = int(np.ceil(3 / grid_scale))
+            kernel = np.ones((2 * tol + 1, 2 * tol + 1), np.uint8)
+            assert not (felt_mask & (cv2.dilate(drawn, kernel) == 0)).any(), p["side"]   # nothing off the garment
+            assert felt_mask[cv2.erode(drawn, kernel) > 0].all(), p["side"]               # all of it felt
         assert not frame[~inside].any()                     # nothing between or below the panels
         assert _level(trial.left) != _level(trial.right)
         assert page.shown(tr["token"])["ok"]
