@@ -43,7 +43,7 @@ from kiosk.sketch import INK, LINE_PX, PAPER, NetworkInput, network_input, objec
 MULTIPLE = 256
 PLAN_SIDE = 320          # the coarse raster that finds the object's bounding box: longest side in pixels
 MAX_ROUNDING_LOSS = 0.15  # rounding a grid side down may lose at most this much linear resolution
-REFERENCE_FILL = 0.9     # a reference sketch fills this fraction of its panel (the rest is margin)
+REFERENCE_FILL = 0.8     # a reference sketch fills this fraction of its panel (the rest is margin)
 GAP_FRACTION = 0.08      # outline gaps up to 8 % of the panel's shorter side are closed (kiosk.sketch default)
 FINE_MAX_GAP = 11        # at the network grid only gaps up to this are closed; larger ones come from the coarse mask
 VISUAL_SOURCES = ("model", "reference", "none")

@@ -52,11 +52,11 @@ function redraw() {
     ctx.imageSmoothingEnabled = true;
     ctx.drawImage(state.visual.bitmap, x - origin[0], y - origin[1], w, h);
   }
-  if (state.base && state.reference && state.reference.rect) {
+  if (state.base && state.reference && state.reference.rect && state.reference.ink) {
     const [x, y, w, h] = state.reference.rect;
-    ctx.globalCompositeOperation = "multiply";  // paper (white) leaves the picture as it is, ink darkens it
-    ctx.drawImage(state.reference.img, x - origin[0], y - origin[1], w, h);
-    ctx.globalCompositeOperation = "source-over";
+    ctx.globalAlpha = 0.7;
+    ctx.drawImage(state.reference.ink, x - origin[0], y - origin[1], w, h);
+    ctx.globalAlpha = 1;
   }
   ctx.strokeStyle = "rgba(25, 25, 35, 0.9)";
   ctx.lineWidth = 2;
@@ -203,8 +203,22 @@ document.getElementById("reference").addEventListener("click", async () => {
 async function loadReference() {
   const img = new Image();
   img.src = `/api/bundles/${encodeURIComponent(state.garment)}/sketch.png`;
-  await img.decode().catch(() => null);
-  state.reference = { img, rect: state.reference ? state.reference.rect : null };
+  const ok = await img.decode().then(() => true, () => false);
+  let ink = null;
+  if (ok) {  // ink only: paper becomes transparent, so the sketch lies over the picture without hiding it
+    ink = document.createElement("canvas");
+    ink.width = img.naturalWidth;
+    ink.height = img.naturalHeight;
+    const c = ink.getContext("2d");
+    c.drawImage(img, 0, 0);
+    const px = c.getImageData(0, 0, ink.width, ink.height);
+    for (let i = 0; i < px.data.length; i += 4) {
+      px.data[i + 3] = 255 - px.data[i];
+      px.data[i] = px.data[i + 1] = px.data[i + 2] = 25;
+    }
+    c.putImageData(px, 0, 0);
+  }
+  state.reference = { img, ink, rect: state.reference ? state.reference.rect : null };
 }
 
 async function selectGarment(id) {
