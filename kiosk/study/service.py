@@ -142,12 +142,12 @@ class StudyService:
         with self._lock:
             try:
                 code = self.config.participants.check(participant)  # type: ignore[arg-type]
-            except ParticipantError as exc:
+            except ParticipantError:
                 # The operator sees the message; the log keeps only why (what was typed may be a name).
                 why = ("not a code" if not (isinstance(participant, str) and CODE_RE.match(participant))
                        else "not on the list" if self.config.participants.codes else "does not match the pattern")
                 self._event("participant_rejected", detail=why)
-                raise exc
+                raise
             if self._active is not None and self._active.key[0] != code:
                 self._event("start_refused", code=code, detail=f"session of {self._active.key[0]} is running")
                 raise StudyError(f"the session of {self._active.key[0]} is running; stop it first "
