@@ -145,8 +145,9 @@ def parse_render_request(doc: Any) -> RenderRequest:
             _only(p, {"id", "rect", "bundle", "visual", "tactile", "sketch", "half"}, f"scene.panels[{i}]")
             opts = {k: _str(p[k], f"scene.panels[{i}].{k}", 16) for k in ("visual", "tactile", "sketch", "half")
                     if k in p}
-            panels.append(Panel(_str(p.get("id"), f"scene.panels[{i}].id"), _rect(p.get("rect"), f"scene.panels[{i}].rect"),
-                                _str(p.get("bundle"), f"scene.panels[{i}].bundle"), **opts))
+            where = f"scene.panels[{i}]"
+            panels.append(Panel(_str(p.get("id"), f"{where}.id"), _rect(p.get("rect"), f"{where}.rect"),
+                                _str(p.get("bundle"), f"{where}.bundle"), **opts))
         scene = Scene(tuple(panels), _screen(sc.get("screen")))
         sk = doc.get("sketches", {})
         if not isinstance(sk, dict):

@@ -67,8 +67,9 @@ class InferenceConfig:
     bundle's declared sizes). preview_max_resolution: the same while a stroke is being drawn.
     latency_budget_ms: a new bundle must answer its probe within this, and the inference loop's p95 must stay
     under it for the kiosk to count as healthy. refine: answer a stroke end first at the preview resolution (visual
-    and friction), then at full resolution (the page asks for the refinement at once). precisions: the graph precisions this kiosk runs (a bundle carries one
-    precision per graph; one with another, e.g. fp16 on a CPU-only kiosk, is refused at load with a clear reason).
+    and friction), then at full resolution (the page asks for the refinement at once). precisions: the graph
+    precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
+    kiosk, is refused at load with a clear reason).
     """
 
     threads: int = 2

@@ -45,8 +45,8 @@ from kiosk.server import KioskServer, Request, Response
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
-RETIRE_GRACE_S = 10.0
-REFINE_WAIT_S = 0.25  # longest a refinement waits for the quick answer's upload  # a swapped-out bundle stays open this long for jobs that started on it
+RETIRE_GRACE_S = 10.0  # a swapped-out bundle stays open this long for jobs that started on it
+REFINE_WAIT_S = 0.25  # longest a refinement waits for the quick answer's upload
 
 
 class BusyError(KioskError):
@@ -225,7 +225,8 @@ class KioskDaemon:
         results = {}
         for kind in lb.graphs():
             cw, ch = lb.cap(kind)
-            grid = (max(256, min(cw, inf.max_resolution) // 256 * 256), max(256, min(ch, inf.max_resolution) // 256 * 256))
+            grid = (max(256, min(cw, inf.max_resolution) // 256 * 256),
+                    max(256, min(ch, inf.max_resolution) // 256 * 256))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
             runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
             ms = min(r[2] for r in runs[2:])

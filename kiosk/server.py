@@ -225,8 +225,8 @@ class KioskServer:
                     self._send(Response.error(411, "send a Content-Length (chunked bodies are not accepted)"),
                                close=True)
                     return
-                req = Request(method, parts.path, parse_qs(parts.query), {k.lower(): v for k, v in self.headers.items()},
-                              body, self.client_address[0])
+                headers = {k.lower(): v for k, v in self.headers.items()}
+                req = Request(method, parts.path, parse_qs(parts.query), headers, body, self.client_address[0])
                 resp, route = server.dispatch(req)
                 self._send(resp)
                 server.requests += 1
