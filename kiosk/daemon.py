@@ -576,8 +576,12 @@ class KioskDaemon:
             self.m_stage.observe(timings[f"{stage}_ms"] / 1e3, stage=stage)
         self.m_frames.inc(kind=req.mode)
         self.m_e2e.observe(ready - job.received_at, target="visual")
-        log.debug("frame %d %s: %s", frame, req.mode,
-                  "; ".join(p.reason for p in plan.panels), extra={"STAGE_MS": json.dumps(timings)})
+        # The plan of every stroke end is logged (previews only at debug level), with structured fields.
+        log.log(logging.DEBUG if req.preview else logging.INFO, "frame %d %s in %.0f ms: %s", frame, req.mode,
+                timings["total_ms"], "; ".join(f"{p.panel}: {p.reason}" for p in plan.panels),
+                extra={"BUNDLE_ID": ",".join(sorted({bundles[p.bundle].key for p in plan.panels})),
+                       "STAGE_MS": json.dumps({k: round(v, 2) for k, v in timings.items()}),
+                       "PLAN": json.dumps(plan_json, separators=(",", ":"))})
         return FrameResult(frame, req.mode, plan, results, timings, job.received_at, ready, device_frame,
                            self.notices())
 
