@@ -76,6 +76,17 @@ def lower_precision(fp32: Path, precision: str, dst_dir: Path, calibration, cfg:
     return Path(fp32)
 
 
+def _numbers(doc, prefix: str = "") -> dict[str, float]:
+    """The finite numbers of a run's metrics.json (nested: train, val, eval), keyed by dotted path."""
+    out: dict[str, float] = {}
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            out.update(_numbers(v, f"{prefix}{k}."))
+    elif isinstance(doc, (int, float)) and not isinstance(doc, bool) and np.isfinite(doc):
+        out[prefix.rstrip(".")] = float(doc)
+    return out
+
+
 def _sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -168,13 +179,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             rel = f"graphs/{kind}.{cfg.precision}.onnx"
             sources[rel] = path
             graphs[kind] = GraphSpec(rel, cfg.precision, list(GRAPH_OUTPUTS[kind]), [list(s) for s in cfg.sizes])
-        metrics = {}
         metrics_path = run_dir / "metrics.json"
-        if metrics_path.is_file():
-            raw = json.loads(metrics_path.read_text())
-            flat = raw.get("final", raw) if isinstance(raw, dict) else {}
-            metrics = {k: float(v) for k, v in flat.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and np.isfinite(v)}
+        metrics = _numbers(json.loads(metrics_path.read_text())) if metrics_path.is_file() else {}
         ck_path = Path(info["path"])
         now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0)
         manifest = Manifest(

@@ -86,3 +86,10 @@ def test_cli_signed_export_and_errors(run_dir, tmp_path):
     assert bad.returncode == 2 and "no checkpoint" in bad.stderr and "Traceback" not in bad.stderr
     bad = vtk("export", "--run", run_dir, "--out", tmp_path / "x.vtb", "--sizes", "300")
     assert bad.returncode == 2 and "multiples of 256" in bad.stderr
+
+
+def test_run_metrics_are_flattened_for_the_manifest():
+    from exporter.export import _numbers
+    doc = {"train": {"step": 500, "val": {"psnr": 25.7, "nan": float("nan")}, "method": "ours", "ok": True},
+           "eval": {"full_angle_deg": 15.4}, "list": [1, 2]}
+    assert _numbers(doc) == {"train.step": 500.0, "train.val.psnr": 25.7, "eval.full_angle_deg": 15.4}
