@@ -108,6 +108,8 @@ async function render(mode) {
     showNotices();
     return;
   }
+  // A request replaced by a newer one before it ran is answered {"superseded": true} as JSON; only frames are binary.
+  if ((res.headers.get("Content-Type") || "").startsWith("application/json")) return;
   const buf = await res.arrayBuffer();
   const n = new DataView(buf).getUint32(0, true);
   const meta = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
