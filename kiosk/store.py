@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
-import hashlib
 import json
 import os
 import re
@@ -32,7 +31,8 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from kiosk.bundle import MANIFEST, ArchiveLimits, Bundle, safe_extract, verify_directory
+from kiosk.bundle import MANIFEST, ArchiveLimits, Bundle, safe_extract, sha256_file, verify_directory
+from kiosk.durable import fsync_dir
 from kiosk.errors import KioskError
 from kiosk.manifest import BundleError
 from kiosk.signature import load_trusted_keys
@@ -71,14 +71,6 @@ class StoredBundle:
                 "archive_sha256": self.archive_sha256}
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _fsync_tree(root: Path) -> None:
     for dirpath, _, files in os.walk(root):
         for name in files:
@@ -87,15 +79,7 @@ def _fsync_tree(root: Path) -> None:
                 os.fsync(fd)
             finally:
                 os.close(fd)
-        _fsync_dir(Path(dirpath))
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+        fsync_dir(Path(dirpath))
 
 
 def _check_name(kind: str, value: str) -> None:
@@ -282,7 +266,7 @@ class BundleStore:
                     digest = None
                 else:
                     safe_extract(archive, work, self.limits)
-                    digest = _sha256(archive)
+                    digest = sha256_file(archive)
                 bundle = self.verify(work)
                 m = bundle.manifest
                 _check_name("garment", m.garment_id)
@@ -307,8 +291,8 @@ class BundleStore:
                 # The folder becomes visible first, but is listed only once its meta file is in place too.
                 os.rename(work, dest)
                 os.rename(meta_tmp, gdir / META / f"{m.model_version}.json")
-                _fsync_dir(gdir / META)
-                _fsync_dir(gdir)
+                fsync_dir(gdir / META)
+                fsync_dir(gdir)
                 self._adopt(gdir)
                 if activate_if_first and self._link(m.garment_id, CURRENT) is None:
                     self._set_link(m.garment_id, CURRENT, m.model_version)
@@ -342,7 +326,7 @@ class BundleStore:
             tmp = gdir / f".{name}.{secrets.token_hex(6)}"
             os.symlink(version, tmp)
             os.replace(tmp, link)
-        _fsync_dir(gdir)
+        fsync_dir(gdir)
 
     def activate(self, garment: str, version: str) -> StoredBundle:
         """Make `version` the active one (the old active becomes `previous`). Re-verifies the stored copy first
@@ -406,7 +390,7 @@ class BundleStore:
             trash.mkdir(exist_ok=True)
             gone = trash / f"removed-{secrets.token_hex(8)}"
             os.rename(target.path, gone)
-            _fsync_dir(gdir)
+            fsync_dir(gdir)
             shutil.rmtree(gone, ignore_errors=True)
             if not self._versions(garment) and self._link(garment, CURRENT) is None:
                 shutil.rmtree(gdir, ignore_errors=True)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+from kiosk.durable import fsync_dir
 from kiosk.errors import KioskError
 
 FORMAT = "vtkiosk-study-log"
@@ -256,14 +257,6 @@ def software_version() -> str:
         return "vtkiosk unknown"
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 class StudyLog:
     """The one writer of a study log: exclusive lock, torn-tail recovery, durable appends, live state."""
 
@@ -303,7 +296,7 @@ class StudyLog:
                           "created": wall_now(), "software": software_version()}
                 _write_durably(fd, encode_record(header))
                 if created:
-                    _fsync_dir(path.parent)
+                    fsync_dir(path.parent)
                 data = _read_all(fd)
             read = parse_log_bytes(data)
             if not read.records or read.records[0].get("type") != "log" or read.records[0].get("format") != FORMAT:
@@ -392,4 +385,4 @@ def _set_aside_tail(path: Path, fd: int, data: bytes, valid_end: int) -> None:
         os.fsync(f.fileno())
     os.ftruncate(fd, valid_end)
     os.fsync(fd)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
