@@ -65,6 +65,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, default=20, help="timed runs per configuration (default 20)")
     p.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
     p.add_argument("--threads", type=int, default=2, help="intra-op threads, ONNX Runtime and PyTorch (default 2)")
+    p.add_argument("--wait", choices=("passive", "active"), default="passive",
+                   help="what idle worker threads do, in ONNX Runtime (allow_spinning) and PyTorch "
+                        "(OMP_WAIT_POLICY) alike: passive sleeps (default; robust on a shared CPU), active spins")
     p.add_argument("--error-sketches", type=int, default=4, help="held-out sketches per size for errors (default 4)")
     p.add_argument("--run", type=Path, default=None,
                    help="the training run the bundle was exported from (default: the manifest's source_run); "
@@ -136,7 +139,7 @@ class _TorchSession:
 def _worker(spec: dict, folder: Path) -> dict:
     path = folder / f"spec-{len(list(folder.glob('spec-*.json')))}.json"
     path.write_text(json.dumps(spec))
-    env = dict(os.environ, OMP_NUM_THREADS=str(spec["threads"]))
+    env = dict(os.environ, OMP_NUM_THREADS=str(spec["threads"]), OMP_WAIT_POLICY=spec["wait"].upper())
     proc = subprocess.run([sys.executable, "-m", "exporter.bench_worker", str(path)], capture_output=True,
                           text=True, env=env, timeout=3600)
     if proc.returncode != 0:
@@ -265,7 +268,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                         bar.step(f"{kind} {_fmt_size(size)} {c.precision} {c.provider}")
                         spec = {"kind": "torch" if c.path is None else "onnx", "graph": kind, "size": list(size),
                                 "runs": args.runs, "warmup": args.warmup, "threads": args.threads,
-                                "input": str(feed_path), "provider": c.provider,
+                                "wait": args.wait, "input": str(feed_path), "provider": c.provider,
                                 "path": str(c.path) if c.path else None,
                                 "run": str(src.run_dir) if src.run_dir else None, "which": src.which}
                         row = {"graph": kind, "size": _fmt_size(size), "width": size[0], "height": size[1],
@@ -300,7 +303,8 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                     folder = tmp / f"profile-{kind}"
                     folder.mkdir()
                     spec = {"kind": "onnx", "graph": kind, "size": list(size), "runs": max(3, args.runs // 4),
-                            "warmup": 1, "threads": args.threads, "provider": "CPUExecutionProvider",
+                            "warmup": 1, "threads": args.threads, "wait": args.wait,
+                            "provider": "CPUExecutionProvider",
                             "input": str(tmp / f"input-{_fmt_size(size)}.npz"), "path": str(bundle.graph_path(kind)),
                             "profile": str(folder)}
                     prof = _worker(spec, tmp)["profile"]
@@ -318,7 +322,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                    "declared_sizes": {k: [_fmt_size(tuple(s)) for s in m.graph(k).sizes] for k in graphs},
                    "manifest_errors": m.errors, "provenance": m.provenance, "signature_checked": trusted is not None},
         "reference": src.reference_from or None,
-        "settings": {"runs": args.runs, "warmup": args.warmup, "threads": args.threads,
+        "settings": {"runs": args.runs, "warmup": args.warmup, "threads": args.threads, "wait": args.wait,
                      "sizes": [_fmt_size(s) for s in sizes], "precisions": list(args.precisions), "graphs": graphs,
                      "providers": providers, "error_sketches": args.error_sketches,
                      "ground_truth": str(garment_dir) if truth_on else None},
@@ -336,23 +340,23 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
         raise BenchError("--runs, --threads and --error-sketches must be at least 1, --warmup at least 0")
     result = run_bench(args, argv, prog)
     print(markdown_table(result["rows"]))
-    print("\n" + "\n".join([f"goals at the bundle's precision ({', '.join(sorted(set(result['bundle']['precision'].values())))}):"]
-                           + goal_lines(result["goals"])))
+    precisions = ", ".join(sorted(set(result["bundle"]["precision"].values())))
+    print("\n" + "\n".join([f"goals at the bundle's precision ({precisions}):"] + goal_lines(result["goals"])))
     for prof in result["profiles"]:
         print("\n".join(profile_lines(prof)))
     for note in result["notes"]:
         print(f"note: {note}")
     load = result["environment"]
-    print(f"load average at start {load['loadavg_start'][0]:.2f}, at end {load['loadavg_end'][0]:.2f} "
-          f"({load['logical_cpus']} logical CPUs)")
+    print(f"{args.threads} threads, {args.wait} wait; load average at start {load['loadavg_start'][0]:.2f}, at end "
+          f"{load['loadavg_end'][0]:.2f} ({load['logical_cpus']} logical CPUs)")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.plot is not None:
         from exporter.bench_plot import plot
-        m = result["bundle"]
+        m, cpu = result["bundle"], result["environment"]["cpu"]
         plot(result["rows"], args.plot, title=f"{m['garment_id']} {m['model_version']}: speed against error "
-                                              f"({result['environment']['cpu']}, {args.threads} threads)")
+                                              f"({cpu}, {args.threads} threads, {args.wait} wait)")
         print(f"wrote {args.plot}")
     return 0

@@ -3,7 +3,8 @@
 A fresh process per configuration makes peak RSS honest (no earlier session's memory, allocator caches or imported
 torch in the number) and keeps one configuration's threads from disturbing the next. The spec names an ONNX graph
 (+ execution provider) or a training run for PyTorch eager, the input (.npz with `sketch` and `mask`), runs,
-warm-up runs and threads; optionally `profile` (ONNX Runtime per-op-type time shares).
+warm-up runs, threads and the threads' wait policy (`passive` or `active` spinning, for both runtimes); optionally
+`profile` (ONNX Runtime per-op-type time shares).
 
 Output: latencies in ms, session load time, `base_rss_mb` (the process after imports, before the model) and
 `peak_rss_mb` (the process's peak resident set, VmHWM, at the end: interpreter + runtime + model + activations).
@@ -48,6 +49,9 @@ def _onnx_runner(spec: dict, feed: dict):
     import onnxruntime as ort
     from kiosk.probe import session_options
     opts = session_options(int(spec["threads"]))
+    # passive: idle worker threads sleep instead of spinning (ORT's default spins; on a shared CPU that doubles
+    # latency here). PyTorch gets the same through OMP_WAIT_POLICY, set by the parent before this process starts.
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0" if spec.get("wait") == "passive" else "1")
     if spec.get("profile"):
         opts.enable_profiling = True
         opts.profile_file_prefix = str(Path(spec["profile"]) / "ort")

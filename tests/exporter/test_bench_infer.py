@@ -39,6 +39,7 @@ def test_bench_fp32_bundle_with_run(fp32_bundle, tmp_path):
     assert out_png.read_bytes()[:8] == PNG_MAGIC and out_png.stat().st_size > 10_000
     res = json.loads(out_json.read_text())
     assert res["schema"] == "vtkiosk-bench-infer/1" and res["settings"]["runs"] == 3
+    assert res["settings"]["wait"] == "passive" and "2 threads, passive wait" in proc.stdout
     assert res["reference"] == "the bundle's own fp32 graphs"
     rows = res["rows"]
     # 2 sizes x 2 graphs x (fp32 from the bundle, int8 built from the run, PyTorch eager)
