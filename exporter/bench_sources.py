@@ -13,12 +13,11 @@ the reference, and only the bundle's own precision is measured against it.
 """
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from kiosk.bundle import Bundle
+from kiosk.bundle import Bundle, sha256_file
 from kiosk.errors import KioskError
 
 
@@ -51,14 +50,6 @@ def torch_available() -> bool:
     return importlib.util.find_spec("torch") is not None
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def matching_run(bundle: Bundle, run: Path | None) -> tuple[Path | None, str, str]:
     """(run folder, checkpoint name, why not) for the run whose checkpoint the bundle was exported from.
 
@@ -77,7 +68,7 @@ def matching_run(bundle: Bundle, run: Path | None) -> tuple[Path | None, str, st
         return None, name, f"the bundle's source run is not here ({why})"
     for cand in candidates:
         path = folder / "checkpoints" / cand
-        if path.is_file() and _sha256(path) == m.checkpoint_sha256:
+        if path.is_file() and sha256_file(path) == m.checkpoint_sha256:
             return folder, cand, ""
     why = (f"no checkpoint in {folder}/checkpoints has the bundle's SHA-256 {m.checkpoint_sha256[:12]}... "
            "(trained further since the export?)")

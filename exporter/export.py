@@ -4,7 +4,6 @@ its measured error against fp32, the garment's friction calibration and referenc
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
 import platform
 import socket
@@ -22,6 +21,7 @@ from exporter.bundle_writer import write_bundle
 from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
+from kiosk.bundle import sha256_file
 from kiosk.errors import KioskError
 from kiosk.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
@@ -85,10 +85,6 @@ def _numbers(doc, prefix: str = "") -> dict[str, float]:
     elif isinstance(doc, (int, float)) and not isinstance(doc, bool) and np.isfinite(doc):
         out[prefix.rstrip(".")] = float(doc)
     return out
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _garment_id(name: str) -> str:
@@ -192,7 +188,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             created_at=now.isoformat().replace("+00:00", "Z"),
             exporter_version=exporter.__version__,
             source_run=str(run_dir.resolve()),
-            checkpoint_sha256=_sha256(ck_path),
+            checkpoint_sha256=sha256_file(ck_path),
             graphs=graphs,
             friction_scale=float(scale),
             friction_normalization="calibrated",
