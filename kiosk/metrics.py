@@ -14,6 +14,7 @@ Example:
 """
 from __future__ import annotations
 
+import abc
 import bisect
 import math
 import re
@@ -59,7 +60,7 @@ def _label_text(names: Sequence[str], values: Sequence[str], extra: str = "") ->
     return "{" + ",".join(parts) + "}" if parts else ""
 
 
-class _Metric:
+class _Metric(abc.ABC):
     kind = ""
 
     def __init__(self, name: str, help: str, labels: Iterable[str]):
@@ -82,8 +83,9 @@ class _Metric:
             raise MetricError(f"metric {self.name} takes labels {list(self.labels)}; got {sorted(labels)}")
         return tuple(str(labels[n]) for n in self.labels)
 
+    @abc.abstractmethod
     def _samples(self) -> list[str]:
-        raise NotImplementedError
+        """The metric's sample lines in exposition format."""
 
     def render(self) -> str:
         head = f"# HELP {self.name} {escape_help(self.help)}\n# TYPE {self.name} {self.kind}\n"
