@@ -48,10 +48,9 @@ def _profile_summary(path: str, runs: int) -> dict:
 def _onnx_runner(spec: dict, feed: dict):
     import onnxruntime as ort
     from kiosk.probe import session_options
-    opts = session_options(int(spec["threads"]))
     # passive: idle worker threads sleep instead of spinning (ORT's default spins; on a shared CPU that doubles
     # latency here). PyTorch gets the same through OMP_WAIT_POLICY, set by the parent before this process starts.
-    opts.add_session_config_entry("session.intra_op.allow_spinning", "0" if spec.get("wait") == "passive" else "1")
+    opts = session_options(int(spec["threads"]), spinning=spec.get("wait") != "passive")
     if spec.get("profile"):
         opts.enable_profiling = True
         opts.profile_file_prefix = str(Path(spec["profile"]) / "ort")

@@ -180,11 +180,7 @@ class LoadedBundle:
             sess = self._sessions.get(kind)
             if sess is None:
                 path = self.bundle.graph_path(kind)
-                opts = session_options(self.threads)
-                # No busy-waiting between runs: the HTTP and haptic threads share the cores, and spinning
-                # intra-op threads took 3x longer per run on a loaded 2-core machine (measured: 256 px full graph
-                # 26 ms spinning vs 8 ms not).
-                opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+                opts = session_options(self.threads)  # idle threads sleep: see session_options
                 try:
                     sess = ort.InferenceSession(str(path), opts, providers=self.providers)
                 except Exception as exc:  # noqa: BLE001 - ORT's own exception types; all mean "unusable"
