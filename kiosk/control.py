@@ -21,6 +21,7 @@ import socket
 import stat
 import struct
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -135,7 +136,7 @@ class ControlServer:
                 # Under vtkiosk.service the folder is setgid vtkiosk-ops, so the socket already has the group and
                 # no chown is needed (the unit's syscall filter refuses chown).
                 os.chown(tmp, -1, self._gid)
-            sock.listen(8)
+            sock.listen(64)
             os.rename(tmp, self.path)
         except OSError as exc:
             sock.close()
@@ -260,8 +261,17 @@ def send_control(path: Path, request: dict, timeout_s: float = 10.0) -> dict:
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
     sock.settimeout(timeout_s)
     try:
+        deadline = time.monotonic() + timeout_s
         try:
-            sock.connect(str(path))
+            while True:
+                try:
+                    sock.connect(str(path))
+                    break
+                except BlockingIOError:
+                    # EAGAIN: the listen backlog is full (many operators or a busy daemon); wait our turn.
+                    if time.monotonic() >= deadline:
+                        raise
+                    time.sleep(0.01)
         except (FileNotFoundError, ConnectionRefusedError) as exc:
             raise NoDaemonError(f"no kiosk daemon is listening on {path}") from exc
         except PermissionError as exc:
