@@ -109,8 +109,12 @@ class _Job:
 class KioskDaemon:
     """The kiosk. `start()` loads bundles, opens the device, starts serving and sends READY; `stop()` undoes it."""
 
-    def __init__(self, config: KioskConfig, *, notifier: Notifier | None = None, display=None):
+    def __init__(self, config: KioskConfig, *, notifier: Notifier | None = None, display=None,
+                 bundle_sources: Callable[[], list[tuple[str, Callable[[], LoadedBundle]]]] | None = None):
+        """`bundle_sources` replaces the store + configured bundles as what to serve (the A/B study serves each
+        condition's bundle under its own name); it is asked again on every reload."""
         self.config = config
+        self._bundle_sources = bundle_sources
         inf = config.inference
         self.metrics = Registry()
         self._init_metrics()
@@ -189,6 +193,8 @@ class KioskDaemon:
 
     def _candidates(self) -> list[tuple[str, Callable[[], LoadedBundle]]]:
         """(source description, loader) for every bundle the kiosk should serve now."""
+        if self._bundle_sources is not None:
+            return self._bundle_sources()
         inf, store = self.config.inference, self.config.store
         trusted = self._trusted()
         out: list[tuple[str, Callable[[], LoadedBundle]]] = []

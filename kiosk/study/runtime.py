@@ -3,7 +3,7 @@
 The daemon (kiosk.daemon.KioskDaemon) does what it always does: plans scenes, runs ONNX Runtime, turns tactile
 output into friction maps and puts them on the haptic device. Study mode changes two things:
 - what it serves: every (condition, garment) bundle of the study, each under the name `<condition>:<garment>`
-  (the conditions share garment ids, so the garment id alone cannot name them). `StudyDaemon` supplies these as
+  (the conditions share garment ids, so the garment id alone cannot name them). `study_sources` supplies these as
   the daemon's bundle candidates, so they are verified, probed and reported by the daemon's own reload path;
 - what is shown: the study service builds each trial's two-panel scene (reference visual, model tactile, the same
   half) and calls `KioskDaemon.show`; the planner runs the tactile graphs only. The study page is at /study, its
@@ -53,21 +53,16 @@ def bundle_name(sb: StudyBundle) -> str:
     return sb.key
 
 
-class StudyDaemon(KioskDaemon):
-    """The kiosk daemon serving exactly the study's bundles (verified once by `open_study_bundles`)."""
+def study_sources(config: KioskConfig, study_bundles: StudyBundles):
+    """The daemon's `bundle_sources`: exactly the study's bundles (verified once by `open_study_bundles`), each
+    served under `<condition>:<garment>`."""
+    inf = config.inference
 
-    def __init__(self, config: KioskConfig, study_bundles: StudyBundles, **kwargs: Any) -> None:
-        super().__init__(config, **kwargs)
-        self.study_bundles = study_bundles
+    def load(sb: StudyBundle) -> LoadedBundle:
+        return _ConditionBundle(sb, threads=inf.threads, providers=inf.providers, precisions=inf.precisions,
+                                source=f"study:{sb.path}")
 
-    def _candidates(self):  # noqa: D401 - the daemon's hook: (source, loader) per bundle to serve
-        inf = self.config.inference
-
-        def load(sb: StudyBundle) -> LoadedBundle:
-            return _ConditionBundle(sb, threads=inf.threads, providers=inf.providers, precisions=inf.precisions,
-                                    source=f"study:{sb.path}")
-
-        return [(f"study:{sb.path}", lambda sb=sb: load(sb)) for sb in self.study_bundles.items.values()]
+    return lambda: [(f"study:{sb.path}", lambda sb=sb: load(sb)) for sb in study_bundles.items.values()]
 
 
 class DaemonRenderer:
@@ -164,7 +159,7 @@ class StudyRuntime:
                  device: str | None = None) -> None:
         self.config = config
         self.bundles = open_study_bundles(config)           # everything checked before anything is written
-        self.daemon: StudyDaemon | None = None
+        self.daemon: KioskDaemon | None = None
         self.service: StudyService | None = None
         try:
             self.log = StudyLog.open(config.log, config.id)
@@ -173,7 +168,7 @@ class StudyRuntime:
             raise
         try:
             kcfg = kiosk_config_for(config, self.bundles, port=port, control_socket=control_socket, device=device)
-            self.daemon = StudyDaemon(kcfg, self.bundles)
+            self.daemon = KioskDaemon(kcfg, bundle_sources=study_sources(kcfg, self.bundles))
             self.daemon.start()
             served = set(self.daemon.bundles)
             missing = sorted(bundle_name(sb) for sb in self.bundles.items.values() if bundle_name(sb) not in served)
