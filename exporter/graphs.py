@@ -22,7 +22,7 @@ from kiosk.probe import session_options
 OPSET = 17
 
 
-def network_input(generator: nn.Module, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+def first_layer_input(generator: nn.Module, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """cat(sketch, positional encoding) * mask, the generator's first-layer input, in fewer passes over memory.
 
     `TwoBranchUNet.encode` materialises the PE planes, expands them to the batch, concatenates and then masks (about
@@ -41,17 +41,8 @@ def network_input(generator: nn.Module, sketch: torch.Tensor, mask: torch.Tensor
 
 
 def _encode(generator: nn.Module, sketch: torch.Tensor, mask: torch.Tensor):
-    """`TwoBranchUNet.encode` with `network_input` as its first step (the rest is the same layers in order)."""
-    x = network_input(generator, sketch, mask)
-    skips = []
-    for down in generator.downs:
-        x = down(x)
-        skips.append(x)
-    y = generator.up7(skips[7])
-    y = generator.up6(torch.cat([skips[6], y], 1))
-    y = generator.up5(torch.cat([skips[5], y], 1))
-    y = generator.up4(torch.cat([skips[4], y], 1))
-    return y, skips
+    """`TwoBranchUNet.encode` with `first_layer_input` as its first step."""
+    return generator.encode_input(first_layer_input(generator, sketch, mask))
 
 
 class _Single(nn.Module):

@@ -119,7 +119,10 @@ class TwoBranchUNet(nn.Module):
     def encode(self, sketch: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """Shared part: masked (sketch, PE) -> encoder skips and the trunk after up4."""
         self._check(sketch, mask)
-        x = torch.cat([sketch, positional_encoding(sketch, self.pe_dim)], 1) * mask
+        return self.encode_input(torch.cat([sketch, positional_encoding(sketch, self.pe_dim)], 1) * mask)
+
+    def encode_input(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """`encode` from its first-layer input (masked sketch + PE), for an exporter that builds it its own way."""
         skips = []
         for down in self.downs:
             x = down(x)
