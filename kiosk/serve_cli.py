@@ -67,7 +67,17 @@ def configure_logging(level: str) -> None:
     setup(level=level)
 
 
-def run(daemon, *, exit_after_ready: bool = False, out=print) -> int:
+def say_line(text: str) -> None:
+    """One line to stdout in a single write.
+
+    print() writes the text and the newline separately; unbuffered (PYTHONUNBUFFERED, as under CI) a log line from
+    another thread on the same pipe can land between them, and whoever reads the serving URL off it gets garbage.
+    """
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def run(daemon, *, exit_after_ready: bool = False, out=say_line) -> int:
     """Start `daemon`, print its URL, and serve until SIGTERM/SIGINT; SIGHUP reloads."""
     stop = threading.Event()
     reload_wanted = threading.Event()
@@ -87,7 +97,7 @@ def run(daemon, *, exit_after_ready: bool = False, out=print) -> int:
     signal.signal(signal.SIGHUP, on_hup)
     try:
         daemon.start()
-        out(f"kiosk serving {', '.join(sorted(daemon.bundles))} at {daemon.server.url}", flush=True)
+        out(f"kiosk serving {', '.join(sorted(daemon.bundles))} at {daemon.server.url}")
         if exit_after_ready:
             return 0
         while not stop.is_set():

@@ -150,7 +150,7 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
         return 0
     from kiosk.config import load_config
     from kiosk.daemon import KioskDaemon
-    from kiosk.serve_cli import configure_logging, run
+    from kiosk.serve_cli import configure_logging, run, say_line
 
     store = {"allow_unsigned": bool(args.allow_unsigned)}
     if trusted is not None:
@@ -164,10 +164,10 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
     t0 = time.perf_counter()
     daemon = KioskDaemon(config)
 
-    def say(text: str, flush: bool = True) -> None:
-        print(f"demo: {text} (started in {time.perf_counter() - t0:.1f} s)", flush=flush)
+    def say(text: str) -> None:
+        say_line(f"demo: {text} (started in {time.perf_counter() - t0:.1f} s)")
         if not args.exit_after_ready:
-            print("demo: open the URL in a browser and draw a garment; the emulated haptic screen feels it. "
-                  "Ctrl-C stops.", flush=True)
+            say_line("demo: open the URL in a browser and draw a garment; the emulated haptic screen feels it. "
+                     "Ctrl-C stops.")
 
     return run(daemon, exit_after_ready=args.exit_after_ready, out=say)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import queue
+import re
 import signal
 import socket
 import subprocess
@@ -16,6 +17,7 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
+SERVING = re.compile(r"kiosk serving .* at (http://[^\s/]+/)")
 
 # Runs `python -m vtkiosk ...` with the systemd package made unimportable: the pure-Python sd_notify path.
 HIDE_SYSTEMD = textwrap.dedent("""
@@ -127,8 +129,9 @@ class ServeProcess:
             assert self.proc is not None and self.proc.stdout is not None
             for line in self.proc.stdout:
                 self.output.append(line)
-                if "kiosk serving" in line and " at http://" in line:
-                    got.put(line.rsplit(" at ", 1)[1].strip())
+                found = SERVING.search(line)
+                if found:
+                    got.put(found.group(1))
             got.put(None)
 
         threading.Thread(target=pump, daemon=True).start()
