@@ -100,3 +100,13 @@ def configure_logging(*, level: str | int = "INFO", journal: bool | None = None)
     if want_journal and kind == "stderr":
         logging.getLogger(__name__).warning("systemd-python is not installed: logging to stderr, not the journal")
     return kind
+
+
+def say_line(text: str) -> None:
+    """One line to stdout in a single write.
+
+    print() writes the text and the newline separately; unbuffered (PYTHONUNBUFFERED, as under CI) a log line from
+    another thread on the same pipe can land between them, and whoever reads the serving URL off it gets garbage.
+    """
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()

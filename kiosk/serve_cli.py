@@ -9,9 +9,10 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
-import sys
 import threading
 from pathlib import Path
+
+from kiosk.logsetup import configure_logging, say_line
 
 log = logging.getLogger("vtkiosk.serve")
 
@@ -58,25 +59,6 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     return o
 
 
-def configure_logging(level: str) -> None:
-    try:
-        from kiosk.logsetup import configure_logging as setup
-    except ImportError:
-        logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-        return
-    setup(level=level)
-
-
-def say_line(text: str) -> None:
-    """One line to stdout in a single write.
-
-    print() writes the text and the newline separately; unbuffered (PYTHONUNBUFFERED, as under CI) a log line from
-    another thread on the same pipe can land between them, and whoever reads the serving URL off it gets garbage.
-    """
-    sys.stdout.write(text + "\n")
-    sys.stdout.flush()
-
-
 def run(daemon, *, exit_after_ready: bool = False, out=say_line) -> int:
     """Start `daemon`, print its URL, and serve until SIGTERM/SIGINT; SIGHUP reloads."""
     stop = threading.Event()
@@ -120,5 +102,5 @@ def main(argv: list[str], prog: str = "vtkiosk serve") -> int:
     from kiosk.daemon import KioskDaemon
 
     config = load_config(args.config, overrides_from_args(args))
-    configure_logging(config.log_level)
+    configure_logging(level=config.log_level)
     return run(KioskDaemon(config), exit_after_ready=args.exit_after_ready)

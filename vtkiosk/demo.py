@@ -150,7 +150,8 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
         return 0
     from kiosk.config import load_config
     from kiosk.daemon import KioskDaemon
-    from kiosk.serve_cli import configure_logging, run, say_line
+    from kiosk.logsetup import configure_logging, say_line
+    from kiosk.serve_cli import run
 
     store = {"allow_unsigned": bool(args.allow_unsigned)}
     if trusted is not None:
@@ -160,7 +161,7 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
         "server": {"host": "127.0.0.1", "port": args.port},
         "device": {"type": "emulated", "report_size": 1024, "emulator": {"link": "hs-hid"}},
         "log_level": "WARNING"})
-    configure_logging(config.log_level)
+    configure_logging(level=config.log_level)
     t0 = time.perf_counter()
     daemon = KioskDaemon(config)
 

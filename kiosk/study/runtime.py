@@ -22,7 +22,7 @@ import yaml
 from kiosk.config import KioskConfig, config_from_mapping
 from kiosk.daemon import KioskDaemon
 from kiosk.engine import LoadedBundle
-from kiosk.logsetup import configure_logging
+from kiosk.logsetup import configure_logging, say_line
 from kiosk.scene import Panel, Scene, SketchInput
 from kiosk.study.bundles import StudyBundle, StudyBundles, open_study_bundles
 from kiosk.study.config import StudyConfig, StudyConfigError, load_study_config
@@ -207,13 +207,13 @@ def run_study(config_path: Path, *, port: int | None = None, control_socket: Pat
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: done.set())
     assert runtime.service is not None and runtime.daemon is not None
-    print(f"study {config.id}: page {runtime.url}", flush=True)
-    print(f"study {config.id}: control socket {runtime.daemon.config.control.socket}", flush=True)
-    print(f"study {config.id}: log {config.log}", flush=True)
+    say_line(f"study {config.id}: page {runtime.url}")
+    say_line(f"study {config.id}: control socket {runtime.daemon.config.control.socket}")
+    say_line(f"study {config.id}: log {config.log}")
     active = runtime.service.status().get("active")
     if active:
-        print(f"study {config.id}: resumed {active['participant']} session {active['session']} at trial "
-              f"{active['trial']}", flush=True)
+        say_line(f"study {config.id}: resumed {active['participant']} session {active['session']} at trial "
+                 f"{active['trial']}")
     try:
         done.wait()
     finally:

@@ -1,9 +1,9 @@
-"""kiosk.serve_cli: the serving line reaches a shared, unbuffered pipe whole."""
+"""kiosk.logsetup.say_line: the serving line reaches a shared, unbuffered pipe whole."""
 from __future__ import annotations
 
 import io
 
-from kiosk.serve_cli import say_line
+from kiosk.logsetup import say_line
 
 
 class RecordingStream(io.StringIO):
