@@ -26,6 +26,9 @@ class DataConfig:
     unpaired: int = 32            # unpaired fake patches per step (inside the object mask)
     candidates_per_touch: int = 4  # random centres drawn per touch before the Laplacian-weighted pick
     laplacian_floor: float = 0.1  # weight = var(Laplacian(sketch patch)) + floor * mean (flat areas still drawn)
+    # Where unpaired fake patches land: "laplacian", weighted like the paired ones, or "uniform" over the object (the
+    # paper), where the tactile D learns "plain cloth under the patch = fake" (docs/training.md, unpaired patches).
+    unpaired_sampling: str = "laplacian"
 
 
 @dataclass
@@ -53,6 +56,13 @@ class LossConfig:
     tactile_l1: float = 10.0
     tactile_perceptual: float = 10.0
     clip_start: float = 0.247     # fraction of the schedule before the CLIP-D starts (epoch 100 of 405)
+    # What the tactile D is conditioned on (docs/training.md "tactile discriminator shortcuts"). The paper feeds fake
+    # patches the *generated* visual crop; "real" gives real and fake patches the same ground-truth crop (dense in
+    # training), so D cannot tell them apart by a visual difference the tactile branch cannot change.
+    tactile_d_visual: str = "generated"
+    # Contact mask of unpaired fake patches: "borrowed" (a paired patch's sensor contact mask x the object mask) or
+    # "object" (the object mask, as published: ~93 % contact where sensor patches have ~50 %, a giveaway to D).
+    unpaired_contact: str = "borrowed"
 
 
 @dataclass
@@ -201,3 +211,10 @@ def validate(cfg: RunConfig) -> None:
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")
+    if cfg.data.unpaired_sampling not in ("uniform", "laplacian"):
+        raise ConfigError(f"data.unpaired_sampling must be one of uniform, laplacian; got "
+                          f"{cfg.data.unpaired_sampling!r}")
+    choices = {"tactile_d_visual": ("generated", "real"), "unpaired_contact": ("object", "borrowed")}
+    for k, allowed in choices.items():
+        if getattr(cfg.loss, k) not in allowed:
+            raise ConfigError(f"loss.{k} must be one of {', '.join(allowed)}; got {getattr(cfg.loss, k)!r}")

@@ -102,18 +102,23 @@ class GarmentData:
         k = self.cfg.patches
         idx = rng.choice(len(ps), size=k, replace=len(ps) < k, p=p)
         gx, gy, c = patches_to_tensors(ps, idx)
-        unpaired = self._unpaired(rng, origin, side, mcrop)
+        unpaired = self._unpaired(rng, side, mcrop, scrop)
         return Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
 
-    def _unpaired(self, rng, origin, side, mcrop) -> np.ndarray:
-        """Fake-patch corners whose centre pixel lies on the object, fully inside the crop."""
+    def _unpaired(self, rng, side, mcrop, scrop) -> np.ndarray:
+        """Fake-patch corners whose centre pixel lies on the object, fully inside the crop; uniform, or weighted by
+        the sketch's Laplacian variance exactly like the paired patches (`data.unpaired_sampling`)."""
         u = self.cfg.unpaired
         if u == 0:
             return np.zeros((0, 2), int)
         h = PATCH // 2
         ys, xs = np.nonzero(mcrop[h:side - h, h:side - h])
-        pick = rng.integers(0, len(xs), size=u)
-        return np.stack([xs[pick], ys[pick]], 1).astype(int)
+        corners = np.stack([xs, ys], 1).astype(int)
+        if self.cfg.unpaired_sampling == "laplacian":
+            pick = rng.choice(len(corners), size=u, p=laplacian_weights(scrop, corners, self.cfg.laplacian_floor))
+        else:
+            pick = rng.integers(0, len(corners), size=u)
+        return corners[pick]
 
     def eval_set(self, split: str = "val") -> Batch:
         """The fixed set: the centre (object-keeping) crop and the patch nearest each touch's middle."""

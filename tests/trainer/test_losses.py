@@ -45,6 +45,39 @@ def test_tactile_gan_trains_tactile_branch_but_not_visual_branch(garment):
     assert _grad_norm(m.generator.downs) > 0          # the shared encoder learns from touch too
 
 
+@pytest.mark.parametrize("shown", ["generated", "real"])
+def test_tactile_d_conditioning(garment, shown):
+    m, b = _setup(garment, overrides=[f"loss.tactile_d_visual={shown}", "loss.unpaired_contact=borrowed"])
+    vis, tac = m.generator(b.sketch, b.mask)
+    real, fake, unpaired = m.tactile_inputs(b, vis, tac)
+    # sketch and contact channels always match between a real patch and its fake twin
+    assert torch.equal(real[:, 2:3], fake[:, 2:3]) and torch.equal(real[:, 6:], fake[:, 6:])
+    same_visual = torch.equal(real[:, 3:6], fake[:, 3:6])
+    assert same_visual == (shown == "real")
+    # borrowed contact: unpaired patch i wears paired patch i's sensor footprint, cut to the object
+    k = len(b.contact)
+    assert len(unpaired) > 0
+    for i in range(len(unpaired)):
+        x, y = b.unpaired[i]
+        obj = b.mask[0, :, y:y + 32, x:x + 32]
+        assert torch.equal(unpaired[i, 6:], b.contact[i % k] * obj)
+        assert torch.equal(unpaired[i, :2], tac[0, :, y:y + 32, x:x + 32] * b.contact[i % k] * obj)
+
+
+def test_unpaired_contact_object_is_the_object_mask(garment):
+    m, b = _setup(garment, overrides=["loss.unpaired_contact=object"])
+    vis, tac = m.generator(b.sketch, b.mask)
+    _, _, unpaired = m.tactile_inputs(b, vis, tac)
+    x, y = b.unpaired[0]
+    assert torch.equal(unpaired[0, 6:], b.mask[0, :, y:y + 32, x:x + 32])
+
+
+def test_tactile_d_options_are_validated():
+    from trainer.config import ConfigError
+    with pytest.raises(ConfigError, match="loss.tactile_d_visual must be one of generated, real"):
+        load_config("tiny", overrides=["loss.tactile_d_visual=ground-truth"])
+
+
 def test_visual_losses_do_not_reach_tactile_branch(garment):
     m, b = _setup(garment)
     vis, tac = m.generator(b.sketch, b.mask)

@@ -64,15 +64,30 @@ class Ours(Method):
 
     # --- inputs of the discriminators ------------------------------------------------------------------------
     def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor):
-        """(real paired, fake paired, fake unpaired) 7-channel patches. The fake visual patch is detached."""
+        """(real paired, fake paired, fake unpaired) 7-channel patches.
+
+        The fake visual patch is detached (paper) or the ground-truth crop (`loss.tactile_d_visual: real`); the
+        unpaired contact mask is the object's or a paired patch's (`loss.unpaired_contact`). Both choices decide
+        whether D can separate fakes by something other than their tactile channels.
+        """
+        lc = self.cfg.loss
         c = batch.contact
         sk = cut(batch.sketch, batch.origins)
+        shown = batch.visual if lc.tactile_d_visual == "real" else visual_fake.detach()
         real = torch.cat([batch.gx * c, batch.gy * c, sk, cut(batch.visual, batch.origins), c], 1)
-        fake = torch.cat([cut(tactile_fake, batch.origins) * c, sk, cut(visual_fake.detach(), batch.origins), c], 1)
+        fake = torch.cat([cut(tactile_fake, batch.origins) * c, sk, cut(shown, batch.origins), c], 1)
         um = cut(batch.mask, batch.unpaired)
+        if lc.unpaired_contact == "borrowed" and len(um):
+            # paired patches are drawn at random, so taking them in order is a random, seeded pairing
+            um = um * c[torch.arange(len(um)) % len(c)]
         unpaired = torch.cat([cut(tactile_fake, batch.unpaired) * um, cut(batch.sketch, batch.unpaired),
-                              cut(visual_fake.detach(), batch.unpaired), um], 1)
+                              cut(shown, batch.unpaired), um], 1)
         return real, fake, unpaired
+
+    def tactile_d(self, real: torch.Tensor, fake: torch.Tensor, unpaired: torch.Tensor):
+        """DT's outputs on (real, fake, unpaired); None for an empty unpaired set."""
+        DT = self.nets["DT"]
+        return DT(real), DT(fake), (DT(unpaired) if len(unpaired) else None)
 
     def generator_losses(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
                          step: int = 0) -> dict[str, torch.Tensor]:
@@ -100,12 +115,10 @@ class Ours(Method):
                 out["t_perc"] = lc.tactile_perceptual * per_channel(self.perceptual, tp * batch.contact,
                                                                      gt * batch.contact)
         if self.tactile_gan:
-            DT = self.nets["DT"]
-            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake)
-            real_o, fake_o = DT(real), DT(fake)
+            real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake))
             gan = g_loss(fake_o)
-            if len(unpaired):
-                gan = (gan + g_loss(DT(unpaired))) / 2
+            if unpaired_o is not None:
+                gan = (gan + g_loss(unpaired_o)) / 2
             out["t_gan"] = lc.tactile_gan * gan
             if lc.feature_matching:
                 out["t_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
@@ -129,10 +142,10 @@ class Ours(Method):
         if self.tactile_gan:
             DT = self.nets["DT"]
             self.opts["DT"].zero_grad(set_to_none=True)
-            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake.detach())
-            loss = d_loss(DT(real), DT(fake))
-            if len(unpaired):
-                loss = loss + d_loss_fake(DT(unpaired))
+            real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake.detach()))
+            loss = d_loss(real_o, fake_o)
+            if unpaired_o is not None:
+                loss = loss + d_loss_fake(unpaired_o)
             loss.backward()
             self._reduce(DT)
             self.opts["DT"].step()
