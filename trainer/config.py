@@ -211,10 +211,10 @@ def validate(cfg: RunConfig) -> None:
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")
-    if cfg.data.unpaired_sampling not in ("uniform", "laplacian"):
-        raise ConfigError(f"data.unpaired_sampling must be one of uniform, laplacian; got "
-                          f"{cfg.data.unpaired_sampling!r}")
-    choices = {"tactile_d_visual": ("generated", "real"), "unpaired_contact": ("object", "borrowed")}
-    for k, allowed in choices.items():
-        if getattr(cfg.loss, k) not in allowed:
-            raise ConfigError(f"loss.{k} must be one of {', '.join(allowed)}; got {getattr(cfg.loss, k)!r}")
+    choices = {("data", "unpaired_sampling"): ("laplacian", "uniform"),
+               ("loss", "tactile_d_visual"): ("generated", "real"),
+               ("loss", "unpaired_contact"): ("borrowed", "object")}
+    for (section, key), allowed in choices.items():
+        value = getattr(getattr(cfg, section), key)
+        if value not in allowed:
+            raise ConfigError(f"{section}.{key} must be one of {', '.join(allowed)}; got {value!r}")

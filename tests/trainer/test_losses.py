@@ -74,8 +74,10 @@ def test_unpaired_contact_object_is_the_object_mask(garment):
 
 def test_tactile_d_options_are_validated():
     from trainer.config import ConfigError
-    with pytest.raises(ConfigError, match="loss.tactile_d_visual must be one of generated, real"):
+    with pytest.raises(ConfigError, match="loss.tactile_d_visual must be one of generated, real; got .ground-truth."):
         load_config("tiny", overrides=["loss.tactile_d_visual=ground-truth"])
+    with pytest.raises(ConfigError, match="data.unpaired_sampling must be one of laplacian, uniform"):
+        load_config("tiny", overrides=["data.unpaired_sampling=grid"])
 
 
 def test_visual_losses_do_not_reach_tactile_branch(garment):
