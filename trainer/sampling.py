@@ -51,20 +51,31 @@ def crop_tensors(g: Garment, origin: tuple[int, int], side: int, *, sketch=None,
     return sk, mk, vis
 
 
-def laplacian_weights(sketch_crop: np.ndarray, origins: np.ndarray, floor: float) -> np.ndarray:
-    """Probability of each candidate patch: var(Laplacian) over its 32x32 window, plus floor x mean."""
+def window_variance(sketch_crop: np.ndarray) -> np.ndarray:
+    """var(Laplacian of the sketch) over every 32x32 window, indexed [y, x] by the window's top-left corner.
+
+    One pass per crop; paired and unpaired patch weights both read from it (integral images, float64)."""
     lap = cv2.Laplacian(sketch_crop.astype(np.float32) / 255.0, cv2.CV_32F, ksize=3)
     s1 = cv2.integral(lap, sdepth=cv2.CV_64F)
     s2 = cv2.integral(lap * lap, sdepth=cv2.CV_64F)
-    x, y = origins[:, 0], origins[:, 1]
 
     def box(s):
-        return s[y + PATCH, x + PATCH] - s[y, x + PATCH] - s[y + PATCH, x] + s[y, x]
+        return s[PATCH:, PATCH:] - s[:-PATCH, PATCH:] - s[PATCH:, :-PATCH] + s[:-PATCH, :-PATCH]
 
     n = PATCH * PATCH
-    var = np.maximum(box(s2) / n - (box(s1) / n) ** 2, 0.0)
+    return np.maximum(box(s2) / n - (box(s1) / n) ** 2, 0.0)
+
+
+def window_weights(variance: np.ndarray, origins: np.ndarray, floor: float) -> np.ndarray:
+    """Probability of each candidate window: its variance plus floor x the candidates' mean."""
+    var = variance[origins[:, 1], origins[:, 0]]
     w = var + floor * (var.mean() if var.size else 0.0) + 1e-12
     return w / w.sum()
+
+
+def laplacian_weights(sketch_crop: np.ndarray, origins: np.ndarray, floor: float) -> np.ndarray:
+    """Probability of each candidate patch: var(Laplacian) over its 32x32 window, plus floor x mean."""
+    return window_weights(window_variance(sketch_crop), origins, floor)
 
 
 def patches_to_tensors(ps: PatchSet, idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -98,14 +109,15 @@ class GarmentData:
                              per_touch=self.cfg.candidates_per_touch, mode="random", rng=rng)
         assert len(ps) > 0, f"{self.g.name}: no training patch lands inside the crop"
         scrop = self.g.sketch[origin[1]:origin[1] + side, origin[0]:origin[0] + side]
-        p = laplacian_weights(scrop, ps.origin, self.cfg.laplacian_floor)
+        variance = window_variance(scrop)
+        p = window_weights(variance, ps.origin, self.cfg.laplacian_floor)
         k = self.cfg.patches
         idx = rng.choice(len(ps), size=k, replace=len(ps) < k, p=p)
         gx, gy, c = patches_to_tensors(ps, idx)
-        unpaired = self._unpaired(rng, side, mcrop, scrop)
+        unpaired = self._unpaired(rng, side, mcrop, variance)
         return Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
 
-    def _unpaired(self, rng, side, mcrop, scrop) -> np.ndarray:
+    def _unpaired(self, rng, side, mcrop, variance) -> np.ndarray:
         """Fake-patch corners whose centre pixel lies on the object, fully inside the crop; uniform, or weighted by
         the sketch's Laplacian variance exactly like the paired patches (`data.unpaired_sampling`)."""
         u = self.cfg.unpaired
@@ -115,7 +127,7 @@ class GarmentData:
         ys, xs = np.nonzero(mcrop[h:side - h, h:side - h])
         corners = np.stack([xs, ys], 1).astype(int)
         if self.cfg.unpaired_sampling == "laplacian":
-            pick = rng.choice(len(corners), size=u, p=laplacian_weights(scrop, corners, self.cfg.laplacian_floor))
+            pick = rng.choice(len(corners), size=u, p=window_weights(variance, corners, self.cfg.laplacian_floor))
         else:
             pick = rng.integers(0, len(corners), size=u)
         return corners[pick]

@@ -1,6 +1,7 @@
 """Patch sampler and augmentation on a folder in the published layout (known gradient field)."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -9,7 +10,7 @@ from tests.conftest import field_gx
 from trainer.augment import eval_crop_origin, object_bbox, origin_range, random_crop_origin
 from trainer.config import DataConfig
 from trainer.data.synthetic import generate_dataset
-from trainer.sampling import GarmentData, cut, laplacian_weights
+from trainer.sampling import GarmentData, cut, laplacian_weights, window_variance
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +92,16 @@ def test_laplacian_weights_prefer_sketch_lines():
     sketch[60:62, :] = 0
     w = laplacian_weights(sketch, np.array([[10, 45], [10, 2], [50, 90]]), floor=0.1)
     assert w.sum() == pytest.approx(1.0) and w[0] > 5 * w[1] and w[1] == pytest.approx(w[2])
+
+
+def test_window_variance_is_the_laplacian_variance_of_each_window():
+    rng = np.random.default_rng(0)
+    sketch = np.where(rng.random((96, 80)) < 0.05, 0, 255).astype(np.uint8)
+    var = window_variance(sketch)
+    assert var.shape == (96 - 32 + 1, 80 - 32 + 1)
+    lap = cv2.Laplacian(sketch.astype(np.float32) / 255.0, cv2.CV_32F, ksize=3).astype(np.float64)
+    for y, x in [(0, 0), (64, 48), (17, 5), (40, 33)]:
+        assert var[y, x] == pytest.approx(lap[y:y + 32, x:x + 32].var(), rel=1e-6, abs=1e-9)
 
 
 def test_fixed_validation_set_is_the_centre_crop(data):
