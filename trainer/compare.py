@@ -13,9 +13,11 @@ from trainer.evaluate import HIGHER_IS_BETTER, Prediction, evaluate_run
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 
 COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1", "L1 ↓"),
-           ("visual_lpips", "LPIPS ↓"), ("visual_sifid", "SIFID ↓"),
+           ("visual_lpips", "LPIPS ↓"), ("visual_sifid", "SIFID ↓"), ("visual_fbsifid", "FB-SIFID ↓"),
            ("tactile_mse", "T-MSE ↓"), ("tactile_angle_deg", "T-angle° ↓"), ("tactile_lpips", "T-LPIPS ↓"),
-           ("full_angle_deg", "Full angle° ↓"), ("full_friction_mae", "Friction MAE ↓")]
+           ("tactile_sifid", "T-SIFID ↓"), ("tactile_fbsifid", "T-FB-SIFID ↓"),
+           ("full_angle_deg", "Full angle° ↓"), ("full_friction_mae", "Friction MAE ↓"),
+           ("full_fbsifid", "Full FB-SIFID ↓")]
 
 
 def table(results: list[dict]) -> tuple[str, dict]:

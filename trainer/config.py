@@ -63,6 +63,13 @@ class LossConfig:
     # Contact mask of unpaired fake patches: "borrowed" (a paired patch's sensor contact mask x the object mask) or
     # "object" (the object mask, as published: ~93 % contact where sensor patches have ~50 %, a giveaway to D).
     unpaired_contact: str = "borrowed"
+    # Stabilisers of the tactile GAN, not in the paper (docs/training.md "tactile GAN stabilisation"). `tactile_r1`
+    # is the R1 weight gamma (D loss += gamma / 2 * E|dD/dx|^2 on real patches; 0 = off, as published): without it
+    # the tactile D wins outright within a few hundred steps and its x5 GAN term drags the tactile branch off the
+    # data. `tactile_gan_ramp` is the fraction of the schedule over which the generator's tactile GAN weight rises
+    # linearly from 0 to `tactile_gan` (0 = off).
+    tactile_r1: float = 1.0
+    tactile_gan_ramp: float = 0.0
 
 
 @dataclass
@@ -211,6 +218,10 @@ def validate(cfg: RunConfig) -> None:
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")
+    if cfg.loss.tactile_r1 < 0:
+        raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
+    if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:
+        raise ConfigError(f"loss.tactile_gan_ramp is a fraction of the schedule, 0..1; got {cfg.loss.tactile_gan_ramp}")
     choices = {("data", "unpaired_sampling"): ("laplacian", "uniform"),
                ("loss", "tactile_d_visual"): ("generated", "real"),
                ("loss", "unpaired_contact"): ("borrowed", "object")}

@@ -16,6 +16,7 @@ from trainer.data.touchclothing import Garment, extract_patches, find_garments, 
 from trainer.metrics import full_field_metrics, l1, psnr, ssim, tactile_patch_metrics
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import grid, label, normal_tile, friction_tile, save_png, to_uint8
+from trainer.texture_distance import fb_sifid_channels
 
 log = logging.getLogger(__name__)
 
@@ -74,15 +75,39 @@ def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> di
     else:
         log.info("eval: no VGG16 weights configured; LPIPS not computed")
     if pre.inception and Path(pre.inception).is_file():
-        from trainer.models.inception import InceptionBlock1, sifid
+        from trainer.models.inception import InceptionBlock1, sifid, sifid_channels
         net = InceptionBlock1.from_file(pre.inception)
         out["visual_sifid"] = sifid(net, p.vis, p.visual)
+        if len(ps):
+            out["tactile_sifid"] = sifid_channels(net, cut(p.tac, ps.origin) * c, torch.cat([gx, gy], 1) * c)
     else:
-        log.info("eval: no InceptionV3 weights configured; SIFID not computed")
+        log.info("eval: no InceptionV3 weights configured; SIFID not computed (FB-SIFID, weight-free, is reported)")
+    out.update(texture_metrics(p, ps))
     if swap:
         path = swap_grid(p)
         if path is not None:
             out["swap_grid"] = str(path)
+    return out
+
+
+def texture_metrics(p: Prediction, ps) -> dict:
+    """FB-SIFID (trainer.texture_distance), always: visual per RGB channel over the object, tactile per channel on
+    each held-out patch's contact pixels, and over the whole object against the synthetic full-field ground truth."""
+    mask = p.crop(p.g.mask).astype(bool)
+    out = {"visual_fbsifid": fb_sifid_channels(p.vis[0].numpy(), p.visual[0].numpy(), mask)}
+    if len(ps):
+        fake = cut(p.tac, ps.origin).numpy()
+        gx, gy, c = patches_to_tensors(ps, np.arange(len(ps)))
+        real = torch.cat([gx, gy], 1).numpy()
+        cm = c.numpy()[:, 0] > 0.5
+        vals = [fb_sifid_channels(fake[k] * cm[k], real[k] * cm[k], cm[k]) for k in range(len(fake))]
+        vals = [v for v in vals if np.isfinite(v)]
+        if vals:
+            out["tactile_fbsifid"] = float(np.mean(vals))
+    ft = p.g.full_tactile
+    if ft is not None:
+        truth = np.stack([p.crop(ft.gx), p.crop(ft.gy)])
+        out["full_fbsifid"] = fb_sifid_channels(p.tac[0].numpy(), truth, mask)
     return out
 
 

@@ -105,9 +105,10 @@ def test_real_layout_folder_trains_and_evaluates(real_layout_dir, tmp_path):
     assert rc == 0
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["crop"] == 768 and m["test_patches"] == 2
-    for k in ("visual_psnr", "visual_ssim", "visual_l1", "tactile_mse", "tactile_angle_deg"):
+    for k in ("visual_psnr", "visual_ssim", "visual_l1", "tactile_mse", "tactile_angle_deg", "visual_fbsifid",
+              "tactile_fbsifid"):
         assert isinstance(m[k], float) and m[k] == m[k]
-    assert "full_angle_deg" not in m   # real data has no full-field ground truth
+    assert "full_angle_deg" not in m and "full_fbsifid" not in m   # real data has no full-field ground truth
     assert json.loads((out / "metrics.json").read_text())["eval"]["step"] == 2
 
 
@@ -121,7 +122,7 @@ def test_cli_all_eval_compare_on_synthetic(synth, tmp_path, capsys):
     runs = [out / "DenimShorts" / "ours", out / "CorduroyTrousers" / "ours"]
     assert all((r / "checkpoints" / "best.pt").is_file() for r in runs)
     m = evaluate_run(runs[0])
-    assert {"full_angle_deg", "full_friction_mae"} <= set(m) and (runs[0] / "eval" / "swap.png").is_file()
+    assert {"full_angle_deg", "full_friction_mae", "full_fbsifid"} <= set(m) and (runs[0] / "eval" / "swap.png").is_file()
     cmp_dir = tmp_path / "cmp"
     assert vtkiosk(["eval", "--compare", str(runs[0]), str(out / "DenimShorts" / "pix2pix"), "--out",
                     str(cmp_dir)]) == 0
@@ -161,3 +162,27 @@ def test_ddp_gloo_two_processes_stay_in_sync(synth, tmp_path):
             assert torch.equal(v, r1[part][k]), (part, k)
     net, info = load_generator(tmp_path / "run", "latest")
     assert info["step"] == 2
+
+
+def test_eval_with_local_inception_weights_reports_visual_and_tactile_sifid(synth, tmp_path):
+    # Random-init weights in torchvision's key layout (plus a key of a later block, which is ignored): the path the
+    # real inception_v3 .pth takes. Published definition: tactile SIFID per channel on each held-out patch.
+    from trainer.models.inception import InceptionBlock1, sifid, sifid_channels
+    torch.manual_seed(0)
+    state = {**InceptionBlock1().state_dict(), "Mixed_5b.branch1x1.conv.weight": torch.zeros(1)}
+    path = tmp_path / "inception_v3.pth"
+    torch.save(state, path)
+    net = InceptionBlock1.from_file(path)
+    a = torch.rand(2, 2, 32, 32) * 2 - 1
+    assert sifid_channels(net, a, a) == pytest.approx(0.0, abs=1e-6)
+    assert sifid_channels(net, a, a.flip(-1) * 0.2) > 0
+    assert sifid_channels(net, a, -a) == pytest.approx(
+        sum(sifid(net, a[k:k + 1, c:c + 1].expand(1, 3, -1, -1), -a[k:k + 1, c:c + 1].expand(1, 3, -1, -1))
+            for k in range(2) for c in range(2)) / 4)
+    cfg = load_config("tiny", overrides=["train.steps=1", f"pretrained.inception={path}"])
+    Trainer(cfg, _garment(synth), tmp_path / "run").run()
+    m = evaluate_run(tmp_path / "run", swap=False)
+    assert all(m[k] >= 0 and m[k] == m[k] for k in ("visual_sifid", "tactile_sifid", "tactile_fbsifid"))
+    with pytest.raises(ValueError, match="not an InceptionV3 state_dict"):
+        torch.save({"fc.weight": torch.zeros(1)}, tmp_path / "bad.pth")
+        InceptionBlock1.from_file(tmp_path / "bad.pth")

@@ -27,3 +27,15 @@ def g_loss(fake_out) -> torch.Tensor:
     """softplus(-D(G(x))): the generator's non-saturating loss."""
     fake = _logits(fake_out)
     return sum(F.softplus(-f).mean() for f in fake) / len(fake)
+
+
+def r1_penalty(real_out, real_in: torch.Tensor) -> torch.Tensor:
+    """R1 (Mescheder et al. 2018): mean squared norm of dD(real)/d(real input), summed over scales' logits.
+
+    Keeps the discriminator's surface flat on the data, so it cannot win by a steep wall the generator's
+    gradient then climbs (the tactile D's failure on this data: docs/training.md). `real_in` must require grad.
+    """
+    logits = _logits(real_out)
+    total = sum(r.sum() for r in logits)
+    (grad,) = torch.autograd.grad(total, real_in, create_graph=True)
+    return grad.pow(2).flatten(1).sum(1).mean()

@@ -14,7 +14,7 @@ from trainer.config import RunConfig
 from trainer.distributed import Dist
 from trainer.losses.clip_d import ClipD
 from trainer.losses.feature_matching import feature_matching
-from trainer.losses.gan import d_loss, d_loss_fake, g_loss
+from trainer.losses.gan import d_loss, d_loss_fake, g_loss, r1_penalty
 from trainer.losses.perceptual import Perceptual, per_channel
 from trainer.methods.base import Method
 from trainer.models.discriminators import MultiScaleD
@@ -89,6 +89,12 @@ class Ours(Method):
         DT = self.nets["DT"]
         return DT(real), DT(fake), (DT(unpaired) if len(unpaired) else None)
 
+    def tactile_gan_weight(self, step: int) -> float:
+        """`loss.tactile_gan`, ramped linearly from 0 over the first `loss.tactile_gan_ramp` of the schedule."""
+        lc = self.cfg.loss
+        ramp = lc.tactile_gan_ramp * self.cfg.train.steps
+        return lc.tactile_gan * (min(1.0, step / ramp) if ramp > 0 else 1.0)
+
     def generator_losses(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
                          step: int = 0) -> dict[str, torch.Tensor]:
         """Each weighted term of the generator loss, separately (tests backpropagate them one by one)."""
@@ -119,7 +125,7 @@ class Ours(Method):
             gan = g_loss(fake_o)
             if unpaired_o is not None:
                 gan = (gan + g_loss(unpaired_o)) / 2
-            out["t_gan"] = lc.tactile_gan * gan
+            out["t_gan"] = self.tactile_gan_weight(step) * gan
             if lc.feature_matching:
                 out["t_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
         return out
@@ -142,14 +148,22 @@ class Ours(Method):
         if self.tactile_gan:
             DT = self.nets["DT"]
             self.opts["DT"].zero_grad(set_to_none=True)
-            real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake.detach()))
+            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake.detach())
+            gamma = self.cfg.loss.tactile_r1
+            if gamma > 0:
+                real.requires_grad_(True)
+            real_o, fake_o, unpaired_o = self.tactile_d(real, fake, unpaired)
             loss = d_loss(real_o, fake_o)
             if unpaired_o is not None:
                 loss = loss + d_loss_fake(unpaired_o)
+            logs["d_tactile"] = loss.item()
+            if gamma > 0:
+                r1 = r1_penalty(real_o, real)
+                logs["d_tactile_r1"] = r1.item()
+                loss = loss + gamma / 2 * r1
             loss.backward()
             self._reduce(DT)
             self.opts["DT"].step()
-            logs["d_tactile"] = loss.item()
         # Generator.
         for net in self.nets.values():
             self._requires_grad(net, False)

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from scipy import linalg
 from torch import nn
+
+from trainer.texture_distance import frechet
 
 
 class BasicConv2d(nn.Module):
@@ -54,8 +55,12 @@ def sifid(net: InceptionBlock1, a: torch.Tensor, b: torch.Tensor, *, size: int =
                   for t in (a, b))
     xa = fa[0].reshape(fa.shape[1], -1).T.double().numpy()
     xb = fb[0].reshape(fb.shape[1], -1).T.double().numpy()
-    mu1, mu2 = xa.mean(0), xb.mean(0)
-    s1, s2 = np.cov(xa, rowvar=False), np.cov(xb, rowvar=False)
-    covmean, _ = linalg.sqrtm(s1 @ s2, disp=False)
-    covmean = np.real(covmean)
-    return float(((mu1 - mu2) ** 2).sum() + np.trace(s1) + np.trace(s2) - 2 * np.trace(covmean))
+    return frechet(xa, xb)
+
+
+def sifid_channels(net: InceptionBlock1, a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean SIFID over patches and channels of (K, C, h, w) tensors, each channel shown as a grey image (the
+    published tactile SIFID: gx and gy separately)."""
+    vals = [sifid(net, a[k:k + 1, c:c + 1].expand(1, 3, -1, -1), b[k:k + 1, c:c + 1].expand(1, 3, -1, -1))
+            for k in range(a.shape[0]) for c in range(a.shape[1])]
+    return float(np.mean(vals))
