@@ -21,19 +21,23 @@ COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1
 
 
 def table(results: list[dict]) -> tuple[str, dict]:
+    """Mean per method over its runs (garments, seeds); with several runs a cell reads `mean ± sd` (sample sd), so
+    a difference can be read against the spread. Best mean per column in bold."""
     by_method: dict[str, list[dict]] = defaultdict(list)
     for r in results:
         by_method[r["method"]].append(r)
     cols = [(k, h) for k, h in COLUMNS if any(k in r for r in results)]
-    means = {m: {k: float(np.mean([r[k] for r in rs if k in r])) for k, _ in cols if any(k in r for r in rs)}
-             for m, rs in by_method.items()}
+    values = {m: {k: [r[k] for r in rs if k in r] for k, _ in cols if any(k in r for r in rs)}
+              for m, rs in by_method.items()}
+    means = {m: {k: float(np.mean(v)) for k, v in row.items()} for m, row in values.items()}
+    sds = {m: {k: float(np.std(v, ddof=1)) for k, v in row.items() if len(v) > 1} for m, row in values.items()}
     garments = {m: sorted({r["garment"] for r in rs}) for m, rs in by_method.items()}
     best = {}
     for k, _ in cols:
         vals = [means[m][k] for m in means if k in means[m]]
         best[k] = (max if k in HIGHER_IS_BETTER else min)(vals)
-    lines = ["| method | garments | " + " | ".join(h for _, h in cols) + " |",
-             "|---|---|" + "---|" * len(cols)]
+    lines = ["| method | garments | runs | " + " | ".join(h for _, h in cols) + " |",
+             "|---|---|---|" + "---|" * len(cols)]
     for m, row in means.items():
         cells = []
         for k, _ in cols:
@@ -41,9 +45,11 @@ def table(results: list[dict]) -> tuple[str, dict]:
                 cells.append("–")
                 continue
             s = f"{row[k]:.4g}"
-            cells.append(f"**{s}**" if np.isclose(row[k], best[k]) else s)
-        lines.append(f"| {m} | {len(garments[m])} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n", {"mean": means, "garments": garments, "best": best, "runs": results}
+            s = f"**{s}**" if np.isclose(row[k], best[k]) else s
+            cells.append(f"{s} ± {sds[m][k]:.2g}" if k in sds[m] else s)
+        lines.append(f"| {m} | {len(garments[m])} | {len(by_method[m])} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n", {"mean": means, "sd": sds, "garments": garments, "best": best,
+                                     "runs": results}
 
 
 def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> list[Path]:

@@ -186,3 +186,12 @@ def test_eval_with_local_inception_weights_reports_visual_and_tactile_sifid(synt
     with pytest.raises(ValueError, match="not an InceptionV3 state_dict"):
         torch.save({"fc.weight": torch.zeros(1)}, tmp_path / "bad.pth")
         InceptionBlock1.from_file(tmp_path / "bad.pth")
+
+
+def test_compare_table_shows_mean_and_spread_over_runs():
+    from trainer.compare import table
+    rs = [{"method": "ours", "garment": "A", "tactile_angle_deg": a} for a in (8.0, 9.0, 10.0)]
+    rs.append({"method": "pix2pix", "garment": "A", "tactile_angle_deg": 9.5})
+    md, data = table(rs)
+    assert "| ours | 1 | 3 | **9** ± 1 |" in md and "| pix2pix | 1 | 1 | 9.5 |" in md
+    assert data["sd"]["ours"]["tactile_angle_deg"] == pytest.approx(1.0) and data["sd"]["pix2pix"] == {}
