@@ -54,9 +54,11 @@ def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> di
     out["visual_ssim"] = ssim(p.vis, p.visual)
     out["visual_l1"] = l1(p.vis, p.visual)
     ps = extract_patches(p.g, "test", crop_origin=p.origin, crop_size=(p.side, p.side), mode="centre")
+    patches = None
     if len(ps):
         gx, gy, c = patches_to_tensors(ps, np.arange(len(ps)))
-        tm = tactile_patch_metrics(cut(p.tac, ps.origin), gx, gy, c)
+        patches = (cut(p.tac, ps.origin), torch.cat([gx, gy], 1), c)
+        tm = tactile_patch_metrics(patches[0], gx, gy, c)
         out.update(tactile_mse=tm["tactile_mse"], tactile_angle_deg=tm["tactile_angle_deg"], test_patches=len(ps))
     ft = p.g.full_tactile
     if ft is not None:
@@ -69,8 +71,7 @@ def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> di
         with torch.no_grad():
             out["visual_lpips"] = float(lp(p.vis, p.visual))
             if len(ps):
-                gt = torch.cat([gx, gy], 1)
-                out["tactile_lpips"] = float(per_channel(lp, cut(p.tac, ps.origin) * c, gt * c, size=224))
+                out["tactile_lpips"] = float(per_channel(lp, patches[0] * c, patches[1] * c, size=224))
         out["lpips_backbone"] = lp.kind
     else:
         log.info("eval: no VGG16 weights configured; LPIPS not computed")
@@ -79,10 +80,10 @@ def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> di
         net = InceptionBlock1.from_file(pre.inception)
         out["visual_sifid"] = sifid(net, p.vis, p.visual)
         if len(ps):
-            out["tactile_sifid"] = sifid_channels(net, cut(p.tac, ps.origin) * c, torch.cat([gx, gy], 1) * c)
+            out["tactile_sifid"] = sifid_channels(net, patches[0] * c, patches[1] * c)
     else:
         log.info("eval: no InceptionV3 weights configured; SIFID not computed (FB-SIFID, weight-free, is reported)")
-    out.update(texture_metrics(p, ps))
+    out.update(texture_metrics(p, patches))
     if swap:
         path = swap_grid(p)
         if path is not None:
@@ -90,16 +91,15 @@ def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> di
     return out
 
 
-def texture_metrics(p: Prediction, ps) -> dict:
+def texture_metrics(p: Prediction, patches: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None) -> dict:
     """FB-SIFID (trainer.texture_distance), always: visual per RGB channel over the object, tactile per channel on
-    each held-out patch's contact pixels, and over the whole object against the synthetic full-field ground truth."""
+    each held-out patch's contact pixels (`patches` = predicted, true (K, 2, 32, 32) and contact (K, 1, 32, 32)),
+    and over the whole object against the synthetic full-field ground truth."""
     mask = p.crop(p.g.mask).astype(bool)
     out = {"visual_fbsifid": fb_sifid_channels(p.vis[0].numpy(), p.visual[0].numpy(), mask)}
-    if len(ps):
-        fake = cut(p.tac, ps.origin).numpy()
-        gx, gy, c = patches_to_tensors(ps, np.arange(len(ps)))
-        real = torch.cat([gx, gy], 1).numpy()
-        cm = c.numpy()[:, 0] > 0.5
+    if patches is not None:
+        fake, real, contact = (t.numpy() for t in patches)
+        cm = contact[:, 0] > 0.5
         vals = [fb_sifid_channels(fake[k] * cm[k], real[k] * cm[k], cm[k]) for k in range(len(fake))]
         vals = [v for v in vals if np.isfinite(v)]
         if vals:
