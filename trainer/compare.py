@@ -4,7 +4,7 @@ normal map, height map and friction map)."""
 from __future__ import annotations
 
 import json
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +68,11 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> 
         if ft is not None:
             rows.append(output_row("truth", p0.visual[0].permute(1, 2, 0).numpy(), p0.crop(ft.gx), p0.crop(ft.gy),
                                    m, float(p0.info["friction_scale"])))
+        counts = Counter(p.info["method"] for p in preds)
         for p in preds:
-            rows.append(output_row(p.info["method"], p.vis[0].permute(1, 2, 0).numpy(), p.tac[0, 0].numpy(),
+            # several runs of one method (seeds): name each row by its run folder too
+            name = p.info["method"] if counts[p.info["method"]] == 1 else f"{p.info['method']} ({p.run.name})"
+            rows.append(output_row(name, p.vis[0].permute(1, 2, 0).numpy(), p.tac[0, 0].numpy(),
                                    p.tac[0, 1].numpy(), m, float(p.info["friction_scale"])))
         path = out_dir / f"sheet_{p0.g.material}.png"
         save_png(path, grid([top] + rows))
