@@ -3,7 +3,8 @@
 Visual: PSNR, SSIM, L1 on the masked image; LPIPS when VGG weights are configured. Tactile (paired 32x32 patches,
 contact pixels): MSE and the angular error in degrees between normalize(gx, gy, 1) vectors. Full field (synthetic
 garments): the same angular error over the whole object mask and the friction-map MAE (0..255 levels) with the
-run's calibrated friction scale. SIFID uses the first block of InceptionV3 (trainer.models.inception).
+run's calibrated friction scale. SIFID uses the first block of InceptionV3 (trainer.models.inception); its
+weight-free fallback FB-SIFID lives in trainer.texture_distance.
 """
 from __future__ import annotations
 
