@@ -11,9 +11,10 @@ output into friction maps and puts them on the haptic device. Study mode changes
 """
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
-import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from kiosk.study.log import StudyLog
 from kiosk.study.service import Rendered, StudyError, StudyService
 
 COMMIT_TIMEOUT_S = 10.0
+SHUTDOWN_STACKS_AFTER_S = 20.0   # a stop slower than this dumps all thread stacks to stderr
 
 
 class _ConditionBundle(LoadedBundle):
@@ -203,9 +205,11 @@ def run_study(config_path: Path, *, port: int | None = None, control_socket: Pat
     config = load_study_config(config_path)
     configure_logging(level="INFO")   # the journal under systemd, else stderr
     runtime = StudyRuntime(config, port=port, control_socket=control_socket, device=device)
-    done = threading.Event()
+    # The handler only flips a flag: a handler that takes a lock (Event.set) can deadlock against the main thread
+    # holding the same lock, and a stop that never starts loses the operator nothing but the process.
+    stop_signal: list[int] = []
     for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: done.set())
+        signal.signal(sig, lambda signum, _frame: stop_signal.append(signum))
     assert runtime.service is not None and runtime.daemon is not None
     say_line(f"study {config.id}: page {runtime.url}")
     say_line(f"study {config.id}: control socket {runtime.daemon.config.control.socket}")
@@ -215,9 +219,15 @@ def run_study(config_path: Path, *, port: int | None = None, control_socket: Pat
         say_line(f"study {config.id}: resumed {active['participant']} session {active['session']} at trial "
                  f"{active['trial']}")
     try:
-        done.wait()
+        while not stop_signal:
+            time.sleep(0.2)
     finally:
-        runtime.close()
+        # A shutdown that stalls leaves every thread's stack on stderr (the journal) instead of a silent hang.
+        faulthandler.dump_traceback_later(SHUTDOWN_STACKS_AFTER_S, exit=False, file=sys.stderr)
+        try:
+            runtime.close()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     print(f"study {config.id}: stopped", file=sys.stderr, flush=True)
     return 0
 
