@@ -205,8 +205,8 @@ def run_study(config_path: Path, *, port: int | None = None, control_socket: Pat
     config = load_study_config(config_path)
     configure_logging(level="INFO")   # the journal under systemd, else stderr
     runtime = StudyRuntime(config, port=port, control_socket=control_socket, device=device)
-    # The handler only flips a flag: a handler that takes a lock (Event.set) can deadlock against the main thread
-    # holding the same lock, and a stop that never starts loses the operator nothing but the process.
+    # The handler only appends to a list: a handler that takes a lock (Event.set) can deadlock against the main
+    # thread if the signal lands while that thread holds the same lock, and the stop would then never start.
     stop_signal: list[int] = []
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda signum, _frame: stop_signal.append(signum))
