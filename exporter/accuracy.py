@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 import onnxruntime as ort
 
-from kiosk.haptics import friction_map
-from kiosk.sketch import NetworkInput
+from kiosk.contract.haptics import friction_map
+from kiosk.contract.sketch import NetworkInput
 
 
 def psnr(a: np.ndarray, b: np.ndarray, *, peak: float = 2.0) -> float:

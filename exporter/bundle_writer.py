@@ -1,6 +1,6 @@
 """Write a `.vtb` bundle: hash every file into the manifest, sign it, pack a deterministic tar atomically.
 
-The format is defined by `kiosk/manifest.py` and `kiosk/bundle.py` (the reader); this writer only fills it in.
+The format is defined by `kiosk/bundle/manifest.py` and `kiosk/bundle/archive.py` (the reader); this writer only fills it in.
 """
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from exporter.keys import sign_manifest
-from kiosk.bundle import MANIFEST, SIGNATURE, sha256_file
-from kiosk.manifest import PATH_RE, BundleError, Manifest, dump_manifest
+from kiosk.bundle.archive import MANIFEST, SIGNATURE, sha256_file
+from kiosk.bundle.manifest import PATH_RE, BundleError, Manifest, dump_manifest
 
 
 def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes, mtime: int) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from kiosk.sketch import INK, NetworkInput, letterbox, network_input, object_mask, rasterize
+from kiosk.contract.sketch import INK, NetworkInput, letterbox, network_input, object_mask, rasterize
 
 
 def _augment(sketch: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -21,9 +21,9 @@ from exporter.bundle_writer import write_bundle
 from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
-from kiosk.bundle import sha256_file
-from kiosk.errors import KioskError
-from kiosk.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.bundle.archive import sha256_file
+from kiosk.contract.errors import KioskError
+from kiosk.bundle.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
 PARITY_BOUND = 1e-4
 

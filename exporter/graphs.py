@@ -1,7 +1,7 @@
 """Trained generator -> ONNX graphs (full, tactile, visual) with dynamic spatial size, and their parity check.
 
 Separate graphs because asking a two-output graph for one output still runs both branches in ONNX Runtime; the
-kiosk picks the graph a scene needs. Each graph takes exactly `kiosk.sketch.network_input`'s tensors (`sketch`,
+kiosk picks the graph a scene needs. Each graph takes exactly `kiosk.contract.sketch.network_input`'s tensors (`sketch`,
 `mask`, (1, 1, H, W) float32) and computes the positional encoding inside.
 """
 from __future__ import annotations
@@ -16,8 +16,8 @@ from torch import nn
 
 from exporter.rewrite import rewrite_conv_transpose
 from trainer.models.posenc import frequencies
-from kiosk.manifest import GRAPH_OUTPUTS
-from kiosk.probe import session_options
+from kiosk.bundle.manifest import GRAPH_OUTPUTS
+from kiosk.bundle.probe import session_options
 
 OPSET = 17
 

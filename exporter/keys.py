@@ -12,8 +12,8 @@ from pathlib import Path
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from kiosk.manifest import BundleError
-from kiosk.signature import format_signature, key_id
+from kiosk.bundle.manifest import BundleError
+from kiosk.bundle.signature import format_signature, key_id
 
 
 def generate_keypair(folder: Path, name: str) -> tuple[Path, Path]:

@@ -13,7 +13,7 @@ def main(argv: list[str], prog: str = "vtkiosk keys") -> int:
     gen.add_argument("--name", default="operator", help="file name stem (default: operator)")
     args = parser.parse_args(argv)
     from exporter.keys import generate_keypair
-    from kiosk.signature import key_id, load_public_key
+    from kiosk.bundle.signature import key_id, load_public_key
 
     priv, pub = generate_keypair(args.out, args.name)
     print(f"private key: {priv} (keep it on the signing workstation)")

@@ -27,7 +27,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
-from kiosk.sketch import NetworkInput
+from kiosk.contract.sketch import NetworkInput
 
 FP32_ISLANDS = ("pe", "first-conv", "heads", "tactile-branch")
 DEFAULT_FP32_ISLANDS = ("pe", "first-conv", "heads")

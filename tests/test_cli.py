@@ -18,7 +18,7 @@ def test_unknown_command(capsys):
 
 
 def test_user_facing_classification():
-    from kiosk.errors import InputError
+    from kiosk.contract.errors import InputError
     assert is_user_facing(InputError("x"))
     assert is_user_facing(FileNotFoundError("x"))
     assert not is_user_facing(KeyError("x"))

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from kiosk.bundle import open_bundle
-from kiosk.signature import load_trusted_keys
+from kiosk.bundle.archive import open_bundle
+from kiosk.bundle.signature import load_trusted_keys
 from tests.kiosk.daemon_fixtures import demo_build
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -46,8 +46,8 @@ def test_runtime_packages_import_without_torch():
 def test_contract_runs_without_torch():
     proc = _run("""
         import numpy as np
-        from kiosk.sketch import rasterize, object_mask, network_input
-        from kiosk.haptics import friction_map
+        from kiosk.contract.sketch import rasterize, object_mask, network_input
+        from kiosk.contract.haptics import friction_map
         s = rasterize([[(10, 10), (50, 10), (50, 40), (10, 40), (10, 10)]], (64, 48))
         x = network_input(s, object_mask(s))
         f = friction_map(np.ones((48, 64)), np.zeros((48, 64)), 0.1, size=(32, 24))

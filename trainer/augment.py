@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 
 MULTIPLE = 256
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 
 
 class CheckpointError(KioskError):

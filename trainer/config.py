@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 

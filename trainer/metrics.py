@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from kiosk.haptics import friction_map
+from kiosk.contract.haptics import friction_map
 from trainer.losses.perceptual import ssim as _ssim
 
 

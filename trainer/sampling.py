@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import torch
 
-from kiosk.sketch import network_input
+from kiosk.contract.sketch import network_input
 from trainer.augment import eval_crop_origin, random_crop_origin, resolve_crop
 from trainer.config import DataConfig
 from trainer.data.touchclothing import PATCH, Garment, PatchSet, extract_patches, friction_scale, load_garment

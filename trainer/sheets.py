@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kiosk.haptics import friction_map, height_from_gradients, normals_from_gradients
+from kiosk.contract.haptics import friction_map, height_from_gradients, normals_from_gradients
 
 TILE = 256
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import importlib
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "infer": ("exporter.bench_infer", "latency, memory and error of a bundle's graphs per size x precision"),
-    "e2e": ("kiosk.bench_e2e", "stroke end -> friction frame committed / visual shown, against a live daemon"),
+    "infer": ("exporter.bench.infer", "latency, memory and error of a bundle's graphs per size x precision"),
+    "e2e": ("kiosk.bench.e2e", "stroke end -> friction frame committed / visual shown, against a live daemon"),
 }
 
 

@@ -17,11 +17,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("trainer.eval_cli", "evaluate runs and compare methods"),
     "export": ("exporter.cli", "export a trained run as a signed ONNX bundle"),
     "keys": ("exporter.keys_cli", "generate an operator signing key pair"),
-    "bundle": ("kiosk.bundle_cli", "inspect, verify, install, activate and roll back bundles"),
+    "bundle": ("kiosk.bundle.cli", "inspect, verify, install, activate and roll back bundles"),
     "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e)"),
-    "serve": ("kiosk.serve_cli", "run the kiosk daemon"),
+    "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
-    "study": ("kiosk.study_cli", "run and analyse A/B haptic user studies"),
+    "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),
     "demo": ("vtkiosk.demo", "the main job: the kiosk on a demo bundle with the emulated device"),
 }
 

@@ -27,8 +27,8 @@ SIZES = "256,512"
 # What makes the bundle: the whole trainer, the exporter modules `vtkiosk export` uses, the runtime contract.
 CODE = ("trainer", "exporter/__init__.py", "exporter/cli.py", "exporter/export.py", "exporter/graphs.py",
         "exporter/rewrite.py", "exporter/quantize.py", "exporter/calibration.py", "exporter/accuracy.py",
-        "exporter/bundle_writer.py", "exporter/keys.py", "kiosk/sketch.py", "kiosk/haptics.py", "kiosk/manifest.py",
-        "kiosk/bundle.py", "kiosk/signature.py", "kiosk/probe.py", "kiosk/validate.py")
+        "exporter/bundle_writer.py", "exporter/keys.py", "kiosk/contract/sketch.py", "kiosk/contract/haptics.py", "kiosk/bundle/manifest.py",
+        "kiosk/bundle/archive.py", "kiosk/bundle/signature.py", "kiosk/bundle/probe.py", "kiosk/contract/validate.py")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -148,10 +148,10 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
         _, trusted = demo_keys(workdir)
     if args.build_only:
         return 0
-    from kiosk.config import load_config
-    from kiosk.daemon import KioskDaemon
-    from kiosk.logsetup import configure_logging, say_line
-    from kiosk.serve_cli import run
+    from kiosk.service.config import load_config
+    from kiosk.service.daemon import KioskDaemon
+    from kiosk.ops.logsetup import configure_logging, say_line
+    from kiosk.service.cli import run
 
     store = {"allow_unsigned": bool(args.allow_unsigned)}
     if trusted is not None:

@@ -14,10 +14,10 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from kiosk.bundle import MANIFEST, Bundle, open_bundle
-from kiosk.errors import KioskError
-from kiosk.manifest import BundleError
-from kiosk.signature import load_trusted_keys
+from kiosk.bundle.archive import MANIFEST, Bundle, open_bundle
+from kiosk.contract.errors import KioskError
+from kiosk.bundle.manifest import BundleError
+from kiosk.bundle.signature import load_trusted_keys
 from kiosk.study.config import StudyConfig
 
 REFERENCE_ASSETS = ("visual", "sketch", "mask")

@@ -33,7 +33,7 @@ from typing import Any
 
 import yaml
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 
 # A participant code is a code, never a name: short, no spaces, nothing that reads like personal data.
 CODE_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}\Z")

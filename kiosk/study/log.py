@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from kiosk.durable import fsync_dir
-from kiosk.errors import KioskError
+from kiosk.bundle.durable import fsync_dir
+from kiosk.contract.errors import KioskError
 
 FORMAT = "vtkiosk-study-log"
 FORMAT_VERSION = 1

@@ -16,7 +16,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Iterable
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 from kiosk.study.log import LogRead, LogState, load_state
 from kiosk.study.stats import (binom_test_two_sided, bootstrap_interval, bradley_terry, cluster_robust_interval,
                                wilson_interval)

@@ -1,6 +1,6 @@
 """`vtkiosk study run`: the kiosk daemon in study mode, with the study service mounted on it.
 
-The daemon (kiosk.daemon.KioskDaemon) does what it always does: plans scenes, runs ONNX Runtime, turns tactile
+The daemon (kiosk.service.daemon.KioskDaemon) does what it always does: plans scenes, runs ONNX Runtime, turns tactile
 output into friction maps and puts them on the haptic device. Study mode changes two things:
 - what it serves: every (condition, garment) bundle of the study, each under the name `<condition>:<garment>`
   (the conditions share garment ids, so the garment id alone cannot name them). `study_sources` supplies these as
@@ -20,11 +20,11 @@ from typing import Any
 
 import yaml
 
-from kiosk.config import KioskConfig, config_from_mapping
-from kiosk.daemon import KioskDaemon
-from kiosk.engine import LoadedBundle
-from kiosk.logsetup import configure_logging, say_line
-from kiosk.scene import Panel, Scene, SketchInput
+from kiosk.service.config import KioskConfig, config_from_mapping
+from kiosk.service.daemon import KioskDaemon
+from kiosk.inference.engine import LoadedBundle
+from kiosk.ops.logsetup import configure_logging, say_line
+from kiosk.inference.scene import Panel, Scene, SketchInput
 from kiosk.study.bundles import StudyBundle, StudyBundles, open_study_bundles
 from kiosk.study.config import StudyConfig, StudyConfigError, load_study_config
 from kiosk.study.log import StudyLog

@@ -27,8 +27,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-from kiosk.errors import InputError, KioskError
-from kiosk.scene import Panel, Scene
+from kiosk.contract.errors import InputError, KioskError
+from kiosk.inference.scene import Panel, Scene
 from kiosk.study.bundles import StudyBundles
 from kiosk.study.config import CODE_RE, ParticipantError, StudyConfig
 from kiosk.study.log import DuplicateResponse, StudyLog
@@ -36,7 +36,7 @@ from kiosk.study.records import response_payload, session_payload
 from kiosk.study.schedule import SIDES, Schedule, Trial, make_schedule
 
 if TYPE_CHECKING:
-    from kiosk.server import Request, Response
+    from kiosk.service.server import Request, Response
 
 log = logging.getLogger(__name__)
 
@@ -387,7 +387,7 @@ class StudyService:
 
     # -- the page's API and the operator's control ops (mounted by kiosk.study.runtime) ---------------------------
     def http_get(self, req: "Request") -> "Response":
-        from kiosk.server import Response
+        from kiosk.service.server import Response
 
         if req.path == "/api/study/trial":
             return Response.json(self.page_state())
@@ -399,7 +399,7 @@ class StudyService:
         return Response.error(404, f"nothing at {req.path}")
 
     def http_post(self, req: "Request") -> "Response":
-        from kiosk.server import Response
+        from kiosk.service.server import Response
 
         body = req.json()
         if not isinstance(body, dict):

@@ -4,9 +4,9 @@ import pytest
 
 from exporter.export import ExportConfig, ExportError, export_run
 from exporter.graphs import export_graph, ort_session, torch_outputs
-from kiosk.bundle import open_bundle
-from kiosk.probe import probe_bundle
-from kiosk.sketch import letterbox, network_input, object_mask
+from kiosk.bundle.archive import open_bundle
+from kiosk.bundle.probe import probe_bundle
+from kiosk.contract.sketch import letterbox, network_input, object_mask
 
 from tests.exporter.conftest import vtk
 

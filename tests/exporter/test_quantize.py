@@ -9,7 +9,7 @@ from exporter.calibration import calibration_set
 from exporter.export import ExportConfig, export_run, rewrites_conv_transpose
 from exporter.graphs import export_graph
 from exporter.quantize import fp32_island_nodes, quantize_int8
-from kiosk.bundle import open_bundle
+from kiosk.bundle.archive import open_bundle
 
 pytestmark = pytest.mark.slow
 
@@ -94,7 +94,7 @@ def test_rewrite_only_for_int8_and_recorded(run_dir, tmp_path):
 
 
 def test_int8_study_table_and_json(run_dir, tmp_path, capsys):
-    from exporter.int8_study import main
+    from exporter.bench.int8_study import main
     out = tmp_path / "study.json"
     assert main(["--run", str(run_dir), "--sizes", "256", "--variants", "minmax:;percentile:pe,heads",
                  "--per-size", "2", "--error-sketches", "1", "--timing-size", "256", "--rounds", "1",

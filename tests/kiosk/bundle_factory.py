@@ -11,8 +11,8 @@ from onnx import TensorProto, helper
 
 from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
-from kiosk.manifest import SCHEMA_VERSION, GraphSpec, Manifest
-from kiosk.sketch import rasterize
+from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.contract.sketch import rasterize
 
 
 def tiny_graph(path: Path, outputs: list[str], *, poison: bool = False) -> Path:

@@ -146,7 +146,7 @@ def test_the_sandbox_is_real(tmp_path, allowed):
 
 ORT_RUN = """
 import sys, numpy as np, onnxruntime as ort
-from kiosk.probe import session_options
+from kiosk.bundle.probe import session_options
 for path in sys.argv[1:]:
     s = ort.InferenceSession(path, session_options(2), providers=["CPUExecutionProvider"])
     x = np.random.default_rng(0).standard_normal((1, 3, 128, 128)).astype(np.float32)

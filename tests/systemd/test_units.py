@@ -124,7 +124,7 @@ def test_hardening_that_matters_is_present():
 
 
 def test_users_groups_paths_and_ports_agree():
-    from kiosk.config import load_config
+    from kiosk.service.config import load_config
 
     unit = {k: v[-1] for k, v in unit_settings(UNITS / "vtkiosk.service").items()}
     browser = {k: v[-1] for k, v in unit_settings(UNITS / "vtkiosk-browser.service").items()}

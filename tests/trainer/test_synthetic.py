@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from kiosk.haptics import height_from_gradients
+from kiosk.contract.haptics import height_from_gradients
 from trainer.data import synthetic as syn
 from trainer.data.synth_fabrics import FABRICS, sample_fabric, texture
 

@@ -5,7 +5,7 @@ import argparse
 import time
 from pathlib import Path
 
-from kiosk.errors import InputError
+from kiosk.contract.errors import InputError
 
 
 def _frame(text: str) -> tuple[int, int]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kiosk.haptics import friction_map, height_from_gradients, normals_from_gradients
+from kiosk.contract.haptics import friction_map, height_from_gradients, normals_from_gradients
 from trainer.data.touchclothing import Garment, friction_scale
 
 SPLIT_COLOURS = {"train": (60, 200, 60), "val": (230, 200, 40), "test": (230, 60, 60)}  # RGB

@@ -228,7 +228,7 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
 
     An existing folder of the same name is replaced (written to a temporary sibling, then renamed).
     """
-    from kiosk.sketch import sketch_from_image  # the kiosk's own sketch rule, so synthetic sketches match it
+    from kiosk.contract.sketch import sketch_from_image  # the kiosk's own sketch rule, so synthetic sketches match it
 
     spec.validate()
     w, h = _check_frame(frame)

@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import yaml
 
-from kiosk.errors import KioskError
-from kiosk.haptics import calibrate_scale
+from kiosk.contract.errors import KioskError
+from kiosk.contract.haptics import calibrate_scale
 
 PUBLISHED_FRAME = (1280, 960)  # camera frame (width, height)
 PUBLISHED_PADDED = 1800
@@ -241,7 +241,7 @@ def load_garment(root: Path, *, tactile: bool = True) -> Garment:
     if mask_path is not None:
         mask = _read_image(mask_path, False, padded) > 127
     else:
-        from kiosk.sketch import object_mask
+        from kiosk.contract.sketch import object_mask
         mask = object_mask(sketch)
     visual = _read_image(visual_path, True, padded) if visual_path is not None else None
     g = Garment(root=root, material=material, padded_size=padded, multiplier=mult, frame=frame, offset=offset,

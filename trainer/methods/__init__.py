@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import importlib
 
-from kiosk.errors import KioskError
+from kiosk.contract.errors import KioskError
 
 METHODS: dict[str, str] = {
     "ours": "trainer.methods.ours:Ours",

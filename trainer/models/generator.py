@@ -10,7 +10,7 @@ outermost (up0) takes the encoder skip of its level, concatenated (reference-not
 Outputs: tanh, multiplied by the mask. About 1.47 M parameters.
 
 Input: the masked sketch (N, 1, H, W) in [-1, 1] and the mask (N, 1, H, W) in {0, 1}, exactly the two tensors of
-`kiosk.sketch.network_input`; the positional encoding is computed inside, so exported graphs take only these.
+`kiosk.contract.sketch.network_input`; the positional encoding is computed inside, so exported graphs take only these.
 """
 from __future__ import annotations
 

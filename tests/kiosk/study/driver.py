@@ -6,7 +6,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
-from kiosk.control import send_control
+from kiosk.ops.control import send_control
 
 
 class StudyPage:

@@ -99,7 +99,7 @@ def test_participant_codes():
 
 
 def test_the_example_config_is_valid():
-    from kiosk.config import config_from_mapping
+    from kiosk.service.config import config_from_mapping
 
     root = Path(__file__).resolve().parents[3]
     cfg = load_study_config(root / "configs" / "study.example.yaml")

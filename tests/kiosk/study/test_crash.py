@@ -11,7 +11,7 @@ from collections import Counter
 
 import pytest
 
-from kiosk.control import ControlError
+from kiosk.ops.control import ControlError
 from kiosk.study.config import load_study_config
 from kiosk.study.log import load_state, read_log
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from kiosk.haptics import friction_map
+from kiosk.contract.haptics import friction_map
 from kiosk.study.bundles import StudyBundleError, open_study_bundles
 from kiosk.study.config import load_study_config
 from kiosk.study.log import read_log

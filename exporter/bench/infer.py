@@ -1,0 +1,362 @@
+"""`vtkiosk bench infer --bundle FILE`: speed against error of a bundle's graphs.
+
+For each size x precision x graph x execution provider: latency (warm-up, then --runs timed runs: p50/p95) and peak
+RSS, each configuration in a fresh process (exporter/bench/worker.py); error against the fp32 reference of the same
+model on held-out sketches (visual PSNR, tactile MAE, friction-map MAE in levels: exporter/accuracy.py); on
+synthetic garments the full-field error against ground truth (exporter/bench/truth.py), so quantization error sits
+beside model error; and PyTorch eager fp32 at the same sizes with the speed ratio. Where the reference and the other
+precisions come from: exporter/bench/sources.py. Prints a table and the goals' verdict, writes JSON and a
+speed-vs-error PNG.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
+from exporter.bench.sources import BenchError, Candidate, build_sources, torch_available
+from kiosk.bundle.manifest import GRAPH_OUTPUTS
+
+PRECISIONS = ("fp32", "fp16", "int8")
+NOT_COMPUTE = {"AzureExecutionProvider"}  # a remote-call provider, not a place to run a graph
+
+
+def _sizes(text: str) -> list[tuple[int, int]]:
+    from exporter.cli import _sizes as parse
+    out = parse(text)
+    for w, h in out:
+        if w % 256 or h % 256 or w < 256 or h < 256:
+            raise argparse.ArgumentTypeError(f"sizes must be multiples of 256; got {w}x{h}")
+    return out
+
+
+def _names(allowed: tuple[str, ...]):
+    def parse(text: str) -> list[str]:
+        items = [t.strip() for t in text.split(",") if t.strip()]
+        bad = [t for t in items if t not in allowed]
+        if bad or not items:
+            raise argparse.ArgumentTypeError(f"choose from {', '.join(allowed)}; got {text!r}")
+        return items
+    return parse
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    p.add_argument("--bundle", type=Path, required=True, help="the bundle (.vtb) to measure")
+    p.add_argument("--sizes", type=_sizes, default=None,
+                   help="input sizes, multiples of 256 (default: the sizes the bundle declares); undeclared sizes "
+                        "are marked * (int8 was not calibrated there)")
+    p.add_argument("--precisions", type=_names(PRECISIONS), default=list(PRECISIONS),
+                   help="fp32,fp16,int8 (default all); the bundle's own precision is its shipped graph, the others "
+                        "are rebuilt from the source run")
+    p.add_argument("--graphs", type=_names(("full", "tactile", "visual")), default=["full", "tactile"])
+    p.add_argument("--providers", type=lambda t: [s.strip() for s in t.split(",") if s.strip()], default=None,
+                   help="ONNX Runtime execution providers (default: every one present)")
+    p.add_argument("--runs", type=int, default=20, help="timed runs per configuration (default 20)")
+    p.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
+    p.add_argument("--threads", type=int, default=2, help="intra-op threads, ONNX Runtime and PyTorch (default 2)")
+    p.add_argument("--wait", choices=("passive", "active"), default="passive",
+                   help="what idle worker threads do, in ONNX Runtime (allow_spinning) and PyTorch "
+                        "(OMP_WAIT_POLICY) alike: passive sleeps (default; robust on a shared CPU), active spins")
+    p.add_argument("--error-sketches", type=int, default=4, help="held-out sketches per size for errors (default 4)")
+    p.add_argument("--run", type=Path, default=None,
+                   help="the training run the bundle was exported from (default: the manifest's source_run); "
+                        "gives the fp32 reference, other precisions and PyTorch eager")
+    p.add_argument("--reference", type=Path, default=None, help="an fp32 bundle of the same checkpoint, as reference")
+    p.add_argument("--garment", type=Path, default=None,
+                   help="synthetic garment folder with fullT/ for errors against ground truth (default: the run's)")
+    p.add_argument("--no-torch", action="store_true", help="skip PyTorch eager")
+    p.add_argument("--profile", action="store_true",
+                   help="also profile the bundle's precision at the largest size (ONNX Runtime per-op-type time)")
+    p.add_argument("--trusted-keys", type=Path, default=None,
+                   help="check the bundle's signature against these keys (default: hashes only)")
+    p.add_argument("--json", type=Path, default=None, help="write the results here")
+    p.add_argument("--plot", type=Path, default=None, help="write the speed-vs-error PNG here")
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+class _Progress:
+    """tqdm on a terminal when it is installed; otherwise one line per step on stderr (logs stay readable)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self._bar = None
+        self._enabled = enabled
+        if enabled and sys.stderr.isatty():
+            try:
+                from tqdm import tqdm
+                self._bar = tqdm(total=total, file=sys.stderr, unit="cfg", dynamic_ncols=True)
+            except ImportError:
+                pass
+
+    def step(self, what: str) -> None:
+        if self._bar is not None:
+            self._bar.set_description_str(what)
+            self._bar.update(1)
+        elif self._enabled:
+            print(f"bench: {what}", file=sys.stderr, flush=True)
+
+    def note(self, msg: str) -> None:
+        if self._bar is not None:
+            self._bar.write(msg, file=sys.stderr)
+        elif self._enabled:
+            print(msg, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+class _TorchSession:
+    """PyTorch eager behind ONNX Runtime's `run(names, feed)`, so the same error code measures it."""
+
+    def __init__(self, run_dir: Path, which: str, graph: str, threads: int):
+        import torch
+        from exporter.graphs import eager_module
+        from trainer.checkpoint import load_generator
+        torch.set_num_threads(threads)
+        self._torch = torch
+        self._module = eager_module(load_generator(run_dir, which)[0], graph)
+        self._outputs = GRAPH_OUTPUTS[graph]
+
+    def run(self, names, feed):
+        with self._torch.inference_mode():
+            out = self._module(self._torch.from_numpy(feed["sketch"]), self._torch.from_numpy(feed["mask"]))
+        out = dict(zip(self._outputs, out if isinstance(out, tuple) else (out,)))
+        return [out[n].numpy() for n in names]
+
+
+def _worker(spec: dict, folder: Path) -> dict:
+    path = folder / f"spec-{len(list(folder.glob('spec-*.json')))}.json"
+    path.write_text(json.dumps(spec))
+    env = dict(os.environ, OMP_NUM_THREADS=str(spec["threads"]), OMP_WAIT_POLICY=spec["wait"].upper())
+    proc = subprocess.run([sys.executable, "-m", "exporter.bench.worker", str(path)], capture_output=True,
+                          text=True, env=env, timeout=3600)
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise BenchError(f"measuring {spec.get('path') or 'PyTorch eager'} at {spec['size']} failed: "
+                         + " | ".join(tail))
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _latency(res: dict) -> dict:
+    t = np.asarray(res["times_ms"], np.float64)
+    return {"p50_ms": float(np.percentile(t, 50)), "p95_ms": float(np.percentile(t, 95)), "mean_ms": float(t.mean()),
+            "min_ms": float(t.min()), "runs": int(t.size), "load_ms": res["load_ms"],
+            "base_rss_mb": res["base_rss_mb"], "peak_rss_mb": res["peak_rss_mb"], "times_ms": [round(x, 3) for x in t]}
+
+
+def _environment() -> dict:
+    import onnxruntime as ort
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    env = {"cpu": cpu, "logical_cpus": os.cpu_count(), "python": platform.python_version(),
+           "platform": platform.platform(), "onnxruntime": ort.__version__, "numpy": np.__version__,
+           "loadavg_start": list(os.getloadavg())}
+    if torch_available():
+        import torch
+        env["torch"] = torch.__version__
+    return env
+
+
+def _session(path: Path, provider: str, threads: int):
+    import onnxruntime as ort
+    from kiosk.bundle.probe import session_options
+    providers = [provider] + (["CPUExecutionProvider"] if provider != "CPUExecutionProvider" else [])
+    return ort.InferenceSession(str(path), session_options(threads), providers=providers)
+
+
+def _fmt_size(size: tuple[int, int]) -> str:
+    return f"{size[0]}x{size[1]}"
+
+
+def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
+    import onnxruntime as ort
+
+    from exporter.accuracy import compare_outputs, reference_outputs
+    from exporter.calibration import held_out_set
+    from kiosk.bundle.archive import open_bundle
+    from kiosk.contract.sketch import letterbox, network_input, object_mask
+
+    progress_on = not args.no_progress
+    env = _environment()
+    with tempfile.TemporaryDirectory(prefix="vtkiosk-bench-") as tmp_s:
+        tmp = Path(tmp_s)
+        trusted = None
+        if args.trusted_keys is not None:
+            from kiosk.bundle.signature import load_trusted_keys
+            trusted = load_trusted_keys(args.trusted_keys)
+        bundle = open_bundle(args.bundle, trusted, workdir=tmp / "bundle", allow_unsigned=trusted is None)
+        m = bundle.manifest
+        graphs = [g for g in args.graphs if g in m.graphs]
+        if not graphs:
+            raise BenchError(f"the bundle has none of the graphs {', '.join(args.graphs)} (it has "
+                             f"{', '.join(m.graphs)})")
+        reference = None
+        if args.reference is not None:
+            reference = open_bundle(args.reference, trusted, workdir=tmp / "reference",
+                                    allow_unsigned=trusted is None)
+        present = [p for p in ort.get_available_providers() if p not in NOT_COMPUTE]
+        providers = args.providers or present
+        absent = [p for p in providers if p not in present]
+        if absent:
+            raise BenchError(f"execution provider(s) {', '.join(absent)} not present (present: {', '.join(present)})")
+        say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress_on else (lambda msg: None)
+        src = build_sources(bundle, graphs, list(args.precisions), tmp, run=args.run, reference=reference,
+                            progress=say)
+        torch_on = not args.no_torch and src.run_dir is not None
+        if not args.no_torch and src.run_dir is None:
+            src.notes.append("PyTorch eager not measured (needs torch and the source run)")
+        declared = {k: {tuple(s) for s in m.graph(k).sizes} for k in graphs}
+        sizes = args.sizes or sorted({s for k in graphs for s in declared[k]}, key=lambda s: s[0] * s[1])
+        garment_dir = args.garment
+        if garment_dir is None and src.run_dir is not None:
+            import yaml
+            cfg_path = src.run_dir / "config.yaml"
+            if cfg_path.is_file():
+                garment_dir = Path(str((yaml.safe_load(cfg_path.read_text()) or {}).get("garment", "")) or ".")
+        truth_on = garment_dir is not None and (Path(garment_dir) / "fullT").is_dir() and torch_available()
+        if not truth_on:
+            src.notes.append("no full-field ground truth (needs a synthetic garment folder with fullT/ and the "
+                             "trainer)")
+        precisions = [p for p in args.precisions if any((k, p) in src.graphs for k in graphs)]
+        configs = [(s, k, p, pr) for s in sizes for k in graphs for p in precisions for pr in providers
+                   if (k, p) in src.graphs]
+        total = len(configs) + (len(sizes) * len(graphs) if torch_on else 0) + (len(graphs) if args.profile else 0)
+        bar = _Progress(total, progress_on)
+        for note in src.notes:
+            bar.note(f"bench: note: {note}")
+        sketch = bundle.asset("sketch")
+        rows: list[dict] = []
+        try:
+            for size in sizes:
+                fitted, _ = letterbox(sketch, size)
+                x = network_input(fitted, object_mask(fitted))
+                feed_path = tmp / f"input-{_fmt_size(size)}.npz"
+                np.savez(feed_path, sketch=x.sketch, mask=x.mask)
+                held_out = held_out_set(sketch, [size], args.error_sketches)
+                truth = None
+                if truth_on:
+                    from exporter.bench.truth import garment_truth
+                    truth = garment_truth(garment_dir, size)
+                for kind in graphs:
+                    outputs = GRAPH_OUTPUTS[kind]
+                    ref_sess = _session(src.reference[kind], "CPUExecutionProvider", args.threads) \
+                        if kind in src.reference else None
+                    ref_out = reference_outputs(ref_sess, outputs, held_out) if ref_sess is not None else None
+                    cands = [Candidate(kind, p, pr, src.graphs[(kind, p)][1], src.graphs[(kind, p)][0])
+                             for (s, k, p, pr) in configs if s == size and k == kind]
+                    if torch_on:
+                        cands.append(Candidate(kind, "fp32", "torch-eager", "torch", None))
+                    for c in cands:
+                        bar.step(f"{kind} {_fmt_size(size)} {c.precision} {c.provider}")
+                        spec = {"kind": "torch" if c.path is None else "onnx", "graph": kind, "size": list(size),
+                                "runs": args.runs, "warmup": args.warmup, "threads": args.threads,
+                                "wait": args.wait, "input": str(feed_path), "provider": c.provider,
+                                "path": str(c.path) if c.path else None,
+                                "run": str(src.run_dir) if src.run_dir else None, "which": src.which}
+                        row = {"graph": kind, "size": _fmt_size(size), "width": size[0], "height": size[1],
+                               "precision": c.precision, "provider": c.provider, "source": c.source,
+                               "declared": tuple(size) in declared[kind], **_latency(_worker(spec, tmp))}
+                        if c.path is None:
+                            test = _TorchSession(src.run_dir, src.which, kind, args.threads)
+                        elif ref_sess is not None and Path(c.path) == Path(src.reference[kind]) and \
+                                c.provider == "CPUExecutionProvider":
+                            test = ref_sess  # the reference itself: its error is exactly zero by definition
+                        else:
+                            test = _session(c.path, c.provider, args.threads)
+                        if ref_out is not None:
+                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale))
+                        if truth is not None and "tactile" in outputs:
+                            from exporter.bench.truth import field_errors
+                            feed = {"sketch": truth.input.sketch, "mask": truth.input.mask}
+                            tac = test.run(["tactile"], feed)[0]
+                            row.update(field_errors(tac, truth, m.friction_scale))
+                        rows.append(row)
+            for r in rows:
+                eager = [t for t in rows if t["provider"] == "torch-eager" and t["graph"] == r["graph"]
+                         and t["size"] == r["size"]]
+                r["speedup_vs_torch"] = (eager[0]["p50_ms"] / r["p50_ms"]) if eager and r["provider"] != \
+                    "torch-eager" else None
+            profiles = []
+            if args.profile:
+                size = max(sizes, key=lambda s: s[0] * s[1])
+                for kind in graphs:
+                    precision = m.graph(kind).precision
+                    bar.step(f"profile {kind} {_fmt_size(size)} {precision}")
+                    folder = tmp / f"profile-{kind}"
+                    folder.mkdir()
+                    spec = {"kind": "onnx", "graph": kind, "size": list(size), "runs": max(3, args.runs // 4),
+                            "warmup": 1, "threads": args.threads, "wait": args.wait,
+                            "provider": "CPUExecutionProvider",
+                            "input": str(tmp / f"input-{_fmt_size(size)}.npz"), "path": str(bundle.graph_path(kind)),
+                            "profile": str(folder)}
+                    prof = _worker(spec, tmp)["profile"]
+                    profiles.append({"graph": kind, "size": _fmt_size(size), "precision": precision, **prof})
+        finally:
+            bar.close()
+    env["loadavg_end"] = list(os.getloadavg())
+    default = {k: m.graph(k).precision for k in graphs}
+    return {
+        "schema": "vtkiosk-bench-infer/1",
+        "command": " ".join([prog] + [shlex.quote(a) for a in argv]),
+        "created_at": dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
+        "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
+                   "checkpoint_sha256": m.checkpoint_sha256, "precision": default,
+                   "declared_sizes": {k: [_fmt_size(tuple(s)) for s in m.graph(k).sizes] for k in graphs},
+                   "manifest_errors": m.errors, "provenance": m.provenance, "signature_checked": trusted is not None},
+        "reference": src.reference_from or None,
+        "settings": {"runs": args.runs, "warmup": args.warmup, "threads": args.threads, "wait": args.wait,
+                     "sizes": [_fmt_size(s) for s in sizes], "precisions": list(args.precisions), "graphs": graphs,
+                     "providers": providers, "error_sketches": args.error_sketches,
+                     "ground_truth": str(garment_dir) if truth_on else None},
+        "environment": env,
+        "notes": src.notes,
+        "rows": rows,
+        "goals": goals(rows, default),
+        "profiles": profiles,
+    }
+
+
+def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
+    args = build_parser(prog).parse_args(argv)
+    if args.runs < 1 or args.warmup < 0 or args.threads < 1 or args.error_sketches < 1:
+        raise BenchError("--runs, --threads and --error-sketches must be at least 1, --warmup at least 0")
+    result = run_bench(args, argv, prog)
+    print(markdown_table(result["rows"]))
+    precisions = ", ".join(sorted(set(result["bundle"]["precision"].values())))
+    print("\n" + "\n".join([f"goals at the bundle's precision ({precisions}):"] + goal_lines(result["goals"])))
+    for prof in result["profiles"]:
+        print("\n".join(profile_lines(prof)))
+    for note in result["notes"]:
+        print(f"note: {note}")
+    load = result["environment"]
+    print(f"{args.threads} threads, {args.wait} wait; load average at start {load['loadavg_start'][0]:.2f}, at end "
+          f"{load['loadavg_end'][0]:.2f} ({load['logical_cpus']} logical CPUs)")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot is not None:
+        from exporter.bench.plot import plot
+        m, cpu = result["bundle"], result["environment"]["cpu"]
+        plot(result["rows"], args.plot, title=f"{m['garment_id']} {m['model_version']}: speed against error "
+                                              f"({cpu}, {args.threads} threads, {args.wait} wait)")
+        print(f"wrote {args.plot}")
+    return 0

@@ -1,0 +1,252 @@
+"""Haptic math of the runtime contract: gradients <-> normals, height, friction map.
+
+Defined once here (numpy/opencv only) and imported by the trainer and exporter, so that what a model is trained and
+evaluated on is exactly what the kiosk renders.
+
+Conventions
+-----------
+- `gx`, `gy` are surface gradients (slopes dh/dx, dh/dy; dimensionless), x = column (to the right), y = row (down),
+  shape (H, W). Any real float or integer dtype is accepted; outputs are float32 unless stated.
+- Non-finite input (NaN, +-Inf) is treated as 0 (a flat surface), never propagated. Pass a `NonFiniteCounter` to
+  learn how many values were replaced; the kiosk exports that count as a metric.
+- Paper Eq. 1: n = (gx, gy, -1) / sqrt(gx^2 + gy^2 + 1). The printed inverse "gx = n_x / n_z" contradicts the forward
+  formula (with n_z = -1/s it gives -gx); we use gx = -n_x / n_z, gy = -n_y / n_z so the two functions invert each other.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from kiosk.contract.errors import InputError
+from kiosk.contract.validate import check_size
+
+# Below this, a calibrated friction scale would turn sensor noise into full friction; see `calibrate_scale`.
+MIN_FRICTION_SCALE = 1e-4
+# Largest |slope| `gradients_from_normals` returns where the normal lies (almost) in the image plane.
+DEFAULT_MAX_SLOPE = 100.0
+
+Normalization = Literal["calibrated", "quantile"]
+
+
+@dataclass
+class NonFiniteCounter:
+    """Accumulates how many non-finite input values were replaced by 0 (for health metrics and tests)."""
+
+    count: int = 0
+
+
+def _field(name: str, a: object) -> np.ndarray:
+    """Validate one 2-D numeric field; return it as a float32 array (a view when possible)."""
+    arr = np.asarray(a)
+    if arr.ndim != 2:
+        raise InputError(f"{name} must be a 2-D array (H, W); got shape {arr.shape}")
+    if arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise InputError(f"{name} must have at least one pixel; got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer) or arr.dtype == bool):
+        raise InputError(f"{name} must be a real numeric array; got dtype {arr.dtype}")
+    return arr
+
+
+def _finite(arr: np.ndarray, dtype: type, counter: NonFiniteCounter | None) -> np.ndarray:
+    """`arr` as `dtype` with non-finite values replaced by 0 (the input is never modified)."""
+    if np.issubdtype(arr.dtype, np.floating):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            if counter is not None:
+                counter.count += int(bad.sum())
+            arr = np.where(bad, 0, arr)
+    return np.ascontiguousarray(arr, dtype=dtype)
+
+
+def sanitize_gradients(gx: object, gy: object, *, counter: NonFiniteCounter | None = None,
+                       dtype: type = np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """Check a gradient pair and return finite, contiguous copies.
+
+    Shape: gx, gy: (H, W), equal shapes -> two (H, W) arrays of `dtype`.
+    Raises InputError on wrong rank, empty or mismatched shapes, non-numeric dtype.
+    """
+    ax, ay = _field("gx", gx), _field("gy", gy)
+    if ax.shape != ay.shape:
+        raise InputError(f"gx and gy must have the same shape; got {ax.shape} and {ay.shape}")
+    return _finite(ax, dtype, counter), _finite(ay, dtype, counter)
+
+
+def normals_from_gradients(gx: object, gy: object, *, counter: NonFiniteCounter | None = None) -> np.ndarray:
+    """Unit surface normals from gradients (paper Eq. 1).
+
+    Shape: gx, gy: (H, W) -> (H, W, 3) float32 (n_x, n_y, n_z), n_z < 0, |n| = 1.
+    Overflow-safe: the norm is computed with hypot, so slopes of 1e30 give (+-1, 0, ~0), not NaN.
+
+    Example:
+        >>> n = normals_from_gradients(np.zeros((2, 2)), np.zeros((2, 2)))
+        >>> n[0, 0].tolist()
+        [0.0, 0.0, -1.0]
+    """
+    ax, ay = sanitize_gradients(gx, gy, counter=counter, dtype=np.float64)
+    norm = np.hypot(np.hypot(ax, ay), 1.0)
+    out = np.empty(ax.shape + (3,), dtype=np.float32)
+    out[..., 0] = ax / norm
+    out[..., 1] = ay / norm
+    out[..., 2] = -1.0 / norm
+    return out
+
+
+def gradients_from_normals(n: object, *, max_slope: float = DEFAULT_MAX_SLOPE,
+                           counter: NonFiniteCounter | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients from normals, the inverse of `normals_from_gradients`.
+
+    Shape: n: (H, W, 3), need not be unit length -> gx, gy: (H, W) float32.
+    Where n_z -> 0 (a wall seen edge-on) the slope is unbounded; it is clipped to +-`max_slope` with the sign of the
+    in-plane component, so the result is always finite. A zero vector gives a flat surface (0, 0).
+    """
+    arr = np.asarray(n)
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise InputError(f"normals must have shape (H, W, 3); got {arr.shape}")
+    if not (max_slope > 0 and np.isfinite(max_slope)):
+        raise InputError(f"max_slope must be a positive finite number; got {max_slope}")
+    nx, ny, nz = (_finite(arr[..., i], np.float64, counter) for i in range(3))
+    # Normalise by the largest component first so that tiny or huge vectors behave alike.
+    big = np.maximum(np.maximum(np.abs(nx), np.abs(ny)), np.abs(nz))
+    big = np.where(big > 0, big, 1.0)
+    nx, ny, nz = nx / big, ny / big, nz / big
+    # |n_z| is floored at 1/max_slope: beyond that slope the answer would be clipped anyway.
+    floor = 1.0 / max_slope
+    nz_safe = np.where(np.abs(nz) >= floor, nz, np.where(nz > 0, floor, -floor))
+    gx = np.clip(-nx / nz_safe, -max_slope, max_slope)
+    gy = np.clip(-ny / nz_safe, -max_slope, max_slope)
+    return gx.astype(np.float32), gy.astype(np.float32)
+
+
+def height_from_gradients(gx: object, gy: object, pixel_pitch: float = 1.0, *,
+                          counter: NonFiniteCounter | None = None) -> np.ndarray:
+    """Height map by least-squares Poisson integration of a gradient field.
+
+    Solves min_h sum (h[i, j+1] - h[i, j] - p*gx~)^2 + (h[i+1, j] - h[i, j] - p*gy~)^2, where gx~, gy~ are the
+    gradients averaged onto the half-pixel between the two samples and p = `pixel_pitch`. The normal equations are a
+    Neumann Poisson problem, diagonalised by the DCT; we solve it with an FFT of the mirror-extended divergence
+    (equivalent to the DCT-II, no SciPy needed). Non-integrable parts of the field (curl) are discarded, which is the
+    least-squares answer, so noisy or inconsistent fields give a finite, smooth best fit.
+
+    Shape: gx, gy: (H, W) slopes -> (H, W) float32 height in the unit of `pixel_pitch`, zero mean.
+
+    Accuracy (tests/kiosk/contract/test_haptics.py, analytic gradients sampled at pixel centres, 128x96 px):
+    sinusoid with a 32 px period: relative RMS error < 1 %; paraboloid: < 0.5 %; a height step given as
+    central-difference gradients: plateau difference within 1 % of the step, no overshoot beyond 2 %.
+    Cost: two real FFTs of (2H, 2W); about 1 s at 1536x1536 on this 2-core machine (not on the kiosk's hot path).
+    """
+    if not (isinstance(pixel_pitch, (int, float, np.floating, np.integer))
+            and np.isfinite(pixel_pitch) and pixel_pitch > 0):
+        raise InputError(f"pixel_pitch must be a positive finite number; got {pixel_pitch!r}")
+    ax, ay = sanitize_gradients(gx, gy, counter=counter, dtype=np.float64)
+    h, w = ax.shape
+    # Slopes above this are clipped: they are non-physical and would overflow the squared sums below.
+    ax = np.clip(ax, -1e12, 1e12) * pixel_pitch
+    ay = np.clip(ay, -1e12, 1e12) * pixel_pitch
+    # Half-pixel differences: fx[:, j] links column j and j+1; fy[i, :] links row i and i+1.
+    fx = 0.5 * (ax[:, :-1] + ax[:, 1:])
+    fy = 0.5 * (ay[:-1, :] + ay[1:, :])
+    # Divergence (normal-equation right-hand side) with Neumann boundary: A^T f.
+    div = np.zeros((h, w), dtype=np.float64)
+    div[:, :-1] -= fx
+    div[:, 1:] += fx
+    div[:-1, :] -= fy
+    div[1:, :] += fy
+    # Mirror-extend to (2H, 2W): the periodic Laplacian there equals the Neumann Laplacian here.
+    ext = np.concatenate([div, div[::-1, :]], axis=0)
+    ext = np.concatenate([ext, ext[:, ::-1]], axis=1)
+    spec = np.fft.rfft2(ext)
+    # Eigenvalues of A^T A (the negative Laplacian) on the periodic (2H, 2W) grid; >= 0, zero only at DC.
+    ky = 2.0 - 2.0 * np.cos(np.pi * np.arange(2 * h) / h)
+    kx = 2.0 - 2.0 * np.cos(np.pi * np.arange(spec.shape[1]) / w)
+    lam = ky[:, None] + kx[None, :]
+    lam[0, 0] = 1.0  # the mean is free; fixed to zero below
+    spec = spec / lam
+    spec[0, 0] = 0.0
+    height = np.fft.irfft2(spec, s=ext.shape)[:h, :w]
+    height -= height.mean()
+    return height.astype(np.float32)
+
+
+def calibrate_scale(gx: object, gy: object, mask: object | None = None, *, quantile: float = 0.98) -> float:
+    """The friction `scale` for a garment: a high quantile of gx^2 + gy^2 over its (masked) training gradients.
+
+    Computed once from training data and stored in the bundle, so every frame of a garment uses the same mapping
+    and a flat garment stays low-friction. Floored at MIN_FRICTION_SCALE (a slope of 0.01) so that an all-flat
+    calibration set cannot make sensor noise feel like a ridge.
+    """
+    if not 0.0 < quantile <= 1.0:
+        raise InputError(f"quantile must be in (0, 1]; got {quantile}")
+    ax, ay = sanitize_gradients(gx, gy, dtype=np.float64)
+    gz = ax * ax + ay * ay
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != gz.shape:
+            raise InputError(f"mask must have the gradients' shape {gz.shape}; got {m.shape}")
+        gz = gz[m.astype(bool)]
+    gz = gz[np.isfinite(gz)]
+    if gz.size == 0:
+        return MIN_FRICTION_SCALE
+    return float(max(np.quantile(gz, quantile), MIN_FRICTION_SCALE))
+
+
+def _min_max(a: np.ndarray) -> np.ndarray:
+    """Stretch to [0, 1]; a constant array maps to 0 instead of dividing by a zero range."""
+    lo, hi = float(a.min()), float(a.max())
+    rng = hi - lo
+    if not rng > 1e-12:
+        return np.zeros_like(a)
+    return (a - lo) / rng
+
+
+def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, int] | None = None, *,
+                 normalization: Normalization = "calibrated", quantile: float = 0.98,
+                 counter: NonFiniteCounter | None = None) -> np.ndarray:
+    """The 8-bit friction map the haptic screen renders (paper Sec. 4.4).
+
+    calibrated (default): z = clip((gx^2 + gy^2) / scale, 0, 1), z' = log10(9 z + 1), where `scale` is the garment's
+    calibrated constant (`calibrate_scale`, stored in the bundle). The same surface always feels the same.
+    quantile: the published per-frame mapping, for comparison: gz clipped at its `quantile`, min-max to [0, 1],
+    log10(9 gz + 1), min-max again. It stretches a nearly flat garment to full friction; `scale` is ignored.
+
+    Then, if `size` = (width, height) is given, resized to the device panel (area averaging when shrinking, linear
+    when enlarging), and quantised: 0 = natural friction, 255 = maximum added friction.
+
+    Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
+
+    Example:
+        >>> friction_map(np.zeros((4, 4)), np.zeros((4, 4)), scale=0.05).max()
+        0
+    """
+    ax, ay = sanitize_gradients(gx, gy, counter=counter)
+    if normalization == "calibrated":
+        if scale is None or not isinstance(scale, (int, float, np.floating, np.integer)) \
+                or not np.isfinite(scale) or scale <= 0:
+            raise InputError(f"friction scale must be a positive finite number (from the bundle's calibration); "
+                             f"got {scale!r}")
+        # Any |slope| above sqrt(scale) saturates to z = 1, so clipping there is exact and prevents overflow.
+        limit = np.float32(2.0 * np.sqrt(scale))
+        ax = np.clip(ax, -limit, limit)  # a new array: the caller's input is never modified
+        ay = np.clip(ay, -limit, limit)
+        z = (ax * ax + ay * ay) * np.float32(1.0 / scale)
+        np.clip(z, 0.0, 1.0, out=z)
+        zp = np.log10(np.float32(9.0) * z + np.float32(1.0))
+    elif normalization == "quantile":
+        if not 0.0 < quantile <= 1.0:
+            raise InputError(f"quantile must be in (0, 1]; got {quantile}")
+        a64, b64 = ax.astype(np.float64), ay.astype(np.float64)
+        gz = np.minimum(a64 * a64 + b64 * b64, 1e300)
+        gz = np.minimum(gz, np.quantile(gz, quantile))
+        zp = _min_max(np.log10(9.0 * _min_max(gz) + 1.0)).astype(np.float32)
+    else:
+        raise InputError(f"normalization must be 'calibrated' or 'quantile'; got {normalization!r}")
+    if size is not None:
+        w, h = check_size(size, "device pixels")
+        if (w, h) != (zp.shape[1], zp.shape[0]):
+            shrink = w <= zp.shape[1] and h <= zp.shape[0]
+            zp = cv2.resize(zp, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+            if zp.ndim == 1:  # cv2 drops a unit axis for 1-pixel-high results
+                zp = zp.reshape(h, w)
+    return np.rint(np.clip(zp, 0.0, 1.0) * 255.0).astype(np.uint8)

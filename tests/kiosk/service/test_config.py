@@ -1,0 +1,128 @@
+"""The kiosk config: typed, strict, with errors an operator can act on (and nothing else escapes the parser)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from kiosk.service.config import ConfigError, KioskConfig, config_from_mapping, load_config
+
+EXAMPLE = Path(__file__).resolve().parents[3] / "configs" / "kiosk.example.yaml"
+
+
+def _write(tmp_path: Path, doc) -> Path:
+    p = tmp_path / "kiosk.yaml"
+    p.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc))
+    return p
+
+
+def test_example_config_loads_and_resolves_paths():
+    cfg = load_config(EXAMPLE)
+    assert isinstance(cfg, KioskConfig)
+    assert cfg.server.host == "127.0.0.1"
+    assert cfg.device.type == "emulated"
+    assert cfg.store.root is not None and cfg.store.root.is_absolute()
+
+
+def test_defaults_need_something_to_serve(tmp_path):
+    with pytest.raises(ConfigError, match="no bundles to serve"):
+        load_config(_write(tmp_path, {}))
+    cfg = load_config(_write(tmp_path, {"bundles": ["a.vtb"]}))
+    assert cfg.bundles == (tmp_path / "a.vtb",)  # relative to the config file's folder
+    assert cfg.inference.threads == 2 and cfg.server.port == 8765 and not cfg.store.allow_unsigned
+
+
+@pytest.mark.parametrize("doc, message", [
+    ({"bundles": ["a"], "servr": {}}, "unknown key.*servr"),
+    ({"bundles": ["a"], "server": {"prot": 1}}, "unknown key.*server.*prot"),
+    ({"bundles": ["a"], "inference": {"threads": "two"}}, "inference.threads must be an integer"),
+    ({"bundles": ["a"], "inference": {"threads": 0}}, "inference.threads must be an integer from 1"),
+    ({"bundles": ["a"], "inference": {"max_resolution": 500}}, "multiple of 256"),
+    ({"bundles": ["a"], "inference": {"preview_max_resolution": 1024, "max_resolution": 512}}, "must not exceed"),
+    ({"bundles": ["a"], "inference": {"precisions": ["int4"]}}, "precisions"),
+    ({"bundles": ["a"], "inference": {"provider": "tpu"}}, "provider"),
+    ({"bundles": ["a"], "inference": {"latency_budget_ms": float("nan")}}, "finite number"),
+    ({"bundles": ["a"], "server": {"host": "0.0.0.0"}}, "not a loopback address"),
+    ({"bundles": ["a"], "server": {"port": 70000}}, "server.port"),
+    ({"bundles": ["a"], "server": {"allow_non_loopback": "yes"}}, "true or false"),
+    ({"bundles": ["a"], "device": {"type": "serial"}}, "device: type must be one of"),
+    ({"bundles": ["a"], "device": {"bogus": 1}}, "device: unknown"),
+    ({"bundles": ["a"], "device": []}, "device must be a mapping"),
+    ({"bundles": "a.vtb"}, "bundles must be a list"),
+    ({"bundles": [3]}, r"bundles\[0\] must be a path"),
+    ({"bundles": ["a"], "health": {"stale_after_s": -1}}, "health.stale_after_s"),
+    ({"bundles": ["a"], "log_level": "LOUD"}, "log_level"),
+    ({"bundles": ["a"], "inference": None, "server": 5}, "server must be a mapping"),
+])
+def test_bad_configs_name_the_key(tmp_path, doc, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(_write(tmp_path, doc))
+    assert str(tmp_path / "kiosk.yaml") in str(info.value)  # the operator learns which file
+    assert info.value.user_facing
+
+
+def test_non_loopback_only_when_allowed(tmp_path):
+    cfg = load_config(_write(tmp_path, {"bundles": ["a"], "server": {"host": "0.0.0.0", "allow_non_loopback": True}}))
+    assert cfg.server.host == "0.0.0.0"
+    for host in ("127.0.0.1", "127.3.4.5", "::1", "localhost"):
+        assert load_config(_write(tmp_path, {"bundles": ["a"], "server": {"host": host}})).server.host == host
+
+
+def test_unreadable_and_malformed_files(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "missing.yaml")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(_write(tmp_path, "server: [unclosed"))
+    with pytest.raises(ConfigError, match="must be a mapping of sections"):
+        load_config(_write(tmp_path, "- a\n- b\n"))
+    p = tmp_path / "bin.yaml"
+    p.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ConfigError, match="not UTF-8"):
+        load_config(p)
+
+
+def test_command_line_overrides_merge_by_section(tmp_path):
+    path = _write(tmp_path, {"bundles": ["a"], "server": {"port": 9000}, "device": {"type": "hid", "vid": 4617}})
+    cfg = load_config(path, {"server": {"host": "::1"}, "device": {"type": "emulated"}, "bundles": ["/b.vtb"]})
+    assert cfg.server.port == 9000 and cfg.server.host == "::1"
+    assert cfg.device.type == "emulated" and cfg.device.vid == 4617
+    assert cfg.bundles == (Path("/b.vtb"),)
+    assert load_config(None, {"bundles": ["/x.vtb"]}).bundles == (Path("/x.vtb"),)
+
+
+# -- property: whatever the YAML says, the parser answers with a config or a ConfigError ------------------------------
+scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
+                    st.text(max_size=12))
+keys = st.sampled_from(["server", "store", "bundles", "device", "inference", "health", "control", "debug",
+                        "state_dir", "log_level", "host", "port", "threads", "type", "root", "precisions",
+                        "max_resolution", "allow_non_loopback", "emulator", "faults", "x"])
+documents = st.recursive(scalars, lambda children: st.one_of(st.lists(children, max_size=4),
+                                                             st.dictionaries(keys, children, max_size=5)),
+                         max_leaves=20)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(documents)
+def test_any_document_gives_a_config_or_a_clear_error(doc):
+    try:
+        cfg = config_from_mapping(doc)
+    except ConfigError as exc:
+        assert str(exc) and "\n" not in str(exc)
+    else:
+        assert isinstance(cfg, KioskConfig)
+
+
+@settings(max_examples=200, deadline=None)
+@given(section=st.sampled_from(["server", "inference", "health", "store", "debug"]),
+       key=st.sampled_from(["port", "threads", "host", "stale_after_s", "allow_unsigned", "max_resolution",
+                            "fault_injection", "latency_budget_ms", "cache_mb", "margin_px"]),
+       value=scalars)
+def test_mutated_valid_config_gives_a_config_or_a_clear_error(section, key, value):
+    doc = {"bundles": ["/a.vtb"], section: {key: value}}
+    try:
+        config_from_mapping(doc)
+    except ConfigError as exc:
+        assert str(exc)
