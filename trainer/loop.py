@@ -18,6 +18,7 @@ from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
+from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.metrics import l1, psnr, tactile_patch_metrics
 from trainer.sampling import GarmentData, cut
 from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_uint8, friction_tile
@@ -47,6 +48,7 @@ class Trainer:
         set_determinism(cfg)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
+        self.method.attach_ema(cfg.train.ema)
         self.val = self.data.eval_set("val")
         self.step = 0
         self.history: list[dict] = []
@@ -64,7 +66,7 @@ class Trainer:
     # --- state ----------------------------------------------------------------------------------------------
     def _payload(self) -> dict:
         m = self.method
-        return {"generator": m.generator.state_dict(), "generator_class": m.generator_class,
+        return {"generator": m.eval_generator.state_dict(), "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
                 "crop": self.data.side, "config": self.cfg.to_dict(),
@@ -91,7 +93,7 @@ class Trainer:
     # --- validation and pictures ----------------------------------------------------------------------------
     @torch.no_grad()
     def predict(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
-        g = self.method.generator
+        g = self.method.eval_generator
         was = g.training
         g.eval()
         out = g(batch.sketch, batch.mask)
@@ -137,7 +139,12 @@ class Trainer:
         first = self.step
         while self.step < end:
             batch = self.data.batch(self.step, self.rank)
+            o = self.cfg.optim
+            factor = lr_factor(o.lr_policy, self.step, t.steps, o.decay_from)
+            apply_lr(self.method.opts, factor)
             logs = self.method.step(batch, self.step)
+            self.method.after_step(self.step)
+            logs["lr_factor"] = factor
             self.step += 1
             if self.step % t.log_every == 0 or self.step == end:
                 if self.dist is not None:
