@@ -18,6 +18,7 @@ from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
+from trainer.progress import Progress
 from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.metrics import l1, psnr, tactile_patch_metrics
 from trainer.sampling import GarmentData, cut
@@ -131,9 +132,7 @@ class Trainer:
         end = min(until if until is not None else t.steps, t.steps)
         bar = None
         if self.main and t.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}",
-                       dynamic_ncols=True)
+            bar = Progress(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}")
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
@@ -151,8 +150,7 @@ class Trainer:
                     logs = {k: average_scalar(x, self.dist.world) for k, x in logs.items()}
                 self.history.append({"step": self.step, **logs})
                 if bar is not None:
-                    bar.set_postfix({k: f"{x:.3g}" for k, x in logs.items() if k in
-                                     ("g_total", "v_l1", "t_l1", "t_gan", "d_visual", "d_tactile", "l1", "d")})
+                    bar.losses_seen(logs)
             if bar is not None:
                 bar.update(1)
             if self.step % t.val_every == 0 or self.step == end:
