@@ -49,8 +49,9 @@ def pick_garments(args) -> list[Path]:
         if len(found) == 1:
             return found
         raise DatasetError(f"{args.data} holds {len(found)} garments; name one with --garment or pass --all")
+    from kiosk.contract.garment import same_garment
     for g in found:
-        if args.garment in (g.name, parse_folder_name(g.name)[0]):
+        if same_garment(args.garment, g.name):       # DenimShorts, denim-shorts or the folder name
             return [g]
     names = ", ".join(parse_folder_name(g.name)[0] for g in found)
     raise DatasetError(f"no garment {args.garment!r} in {args.data} (have: {names})")

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import yaml
 
+from kiosk.contract.garment import garment_id
+
 ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = ROOT / "catalogue"
 INDEX = "catalogue.yaml"
@@ -94,7 +96,6 @@ def pack(run_dir: Path, folder: Path, data_command: str, *, which: str = "best",
     """Add (or replace) the catalogue entry made from a finished run."""
     import torch
 
-    from exporter.export import _garment_id
     from trainer.checkpoint import read_checkpoint
 
     run_dir = Path(run_dir)
@@ -106,7 +107,7 @@ def pack(run_dir: Path, folder: Path, data_command: str, *, which: str = "best",
         raise CatalogueError(f"{garment_dir}: not a synthetic garment; the catalogue only holds reproducible ones")
     if "{data}" not in data_command:
         raise CatalogueError("--data-command must contain {data} where the output folder goes")
-    gid = _garment_id(garment_dir.name)
+    gid = garment_id(garment_dir.name)
     cfg["garment"] = ""
     payload = {"generator": {k: v.half() if v.is_floating_point() else v for k, v in ck["generator"].items()},
                "generator_class": ck.get("generator_class"), "model_config": ck["model_config"],

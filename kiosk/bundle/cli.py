@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from kiosk.contract.garment import garment_id
+
 DEFAULT_CONFIG = Path("/etc/vtkiosk/kiosk.yaml")
 DEFAULT_STORE = Path("/var/lib/vtkiosk/bundles")
 DEFAULT_CONTROL = Path("/run/vtkiosk/control.sock")
@@ -229,6 +231,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def main(argv: list[str], prog: str = "vtkiosk bundle") -> int:
     args = build_parser(prog).parse_args(argv)
+    if getattr(args, "garment", None):
+        args.garment = garment_id(args.garment)   # DenimShorts and the dataset folder name work too
     if args.action in ("inspect", "verify"):
         return _inspect_or_verify(args)
     return _store_action(args)
