@@ -17,6 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from kiosk.contract.errors import KioskError
 from kiosk.contract.garment import garment_id
 
 DEFAULT_CONFIG = Path("/etc/vtkiosk/kiosk.yaml")
@@ -66,6 +67,10 @@ def _inspect_or_verify(args) -> int:
 
 # -- the store ---------------------------------------------------------------------------------------------------
 
+class StoreMissing(KioskError):
+    """`bundle list` on a folder that holds no store: a typo, not an empty kiosk."""
+
+
 class _Settings:
     """Store root, trusted keys, unsigned policy and control socket: options over the kiosk config over defaults."""
 
@@ -95,6 +100,9 @@ def _precision_text(precisions: dict[str, str]) -> str:
 
 
 def _list(settings: _Settings, as_json: bool) -> int:
+    if not Path(settings.root).is_dir():
+        raise StoreMissing(f"no bundle store at {settings.root} (install a bundle there first, or name the store "
+                           "with --store or store.root in the config)")
     items = settings.store().list()
     if as_json:
         print(json.dumps([s.to_json() for s in items], indent=1))
