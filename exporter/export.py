@@ -148,6 +148,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         graphs: dict[str, GraphSpec] = {}
         parities: dict[str, float] = {}
         errors: dict[str, dict[str, float]] = {}
+        progress(f"export: {len(cfg.graphs)} graph(s) at {cfg.precision}, sizes "
+                 + ", ".join(f"{w}x{h}" for w, h in cfg.sizes))
         for kind in cfg.graphs:
             fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0],
                                 rewrite=rewrites_conv_transpose(cfg.precision))
@@ -197,5 +199,6 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                         "checkpoint": ck_path.name, **_recipe(cfg),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
+        progress("export: writing" + (" and signing" if signing_key is not None else "") + " the bundle")
         written = write_bundle(out, manifest, sources, signing_key=signing_key)
     return ExportReport(written, parities, errors, Path(out))
