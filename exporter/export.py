@@ -22,14 +22,10 @@ from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.bundle.archive import sha256_file
-from kiosk.contract.errors import KioskError
+from exporter.errors import ExportError
 from kiosk.bundle.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
 PARITY_BOUND = 1e-4
-
-
-class ExportError(KioskError):
-    """An export that must not produce a bundle; the message says why and what to change."""
 
 
 @dataclass

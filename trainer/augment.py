@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 
 MULTIPLE = 256
 
 
-class CropError(KioskError):
+class CropError(TrainerError):
     """The object cannot be kept inside a crop of the requested size."""
 
 

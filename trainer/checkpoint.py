@@ -14,10 +14,10 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 
 
-class CheckpointError(KioskError):
+class CheckpointError(TrainerError):
     """A run without a usable checkpoint; the message names the file."""
 
 

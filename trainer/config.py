@@ -9,12 +9,12 @@ from pathlib import Path
 
 import yaml
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 
 
-class ConfigError(KioskError):
+class ConfigError(TrainerError):
     """A preset or override that does not fit the typed config; the message names the key."""
 
 

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import yaml
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 from kiosk.contract.haptics import calibrate_scale
 
 PUBLISHED_FRAME = (1280, 960)  # camera frame (width, height)
@@ -31,7 +31,7 @@ TACTILE_KEYS = ("gx_raw", "gy_raw", "vision_mask_x", "vision_mask_y", "vision_ma
 FOLDER_RE = re.compile(r"^singleskit_(?P<material>.+?)_padded_(?P<padded>\d+)_x(?P<mult>\d+)$")
 
 
-class DatasetError(KioskError):
+class DatasetError(TrainerError):
     """A garment folder that does not follow the layout; the message names the folder and what is missing."""
 
 
