@@ -16,7 +16,7 @@ from torch import nn
 
 from exporter.rewrite import rewrite_conv_transpose
 from trainer.models.posenc import frequencies
-from kiosk.bundle.manifest import GRAPH_OUTPUTS
+from kiosk.contract.graph import GRAPH_OUTPUTS, INPUT_NAMES, feeds
 from kiosk.bundle.probe import session_options
 
 OPSET = 17
@@ -85,13 +85,13 @@ def export_graph(generator: nn.Module, kind: str, path: Path, *, size: tuple[int
     w, h = size
     dummy = (torch.zeros(1, 1, h, w), torch.ones(1, 1, h, w))
     outputs = GRAPH_OUTPUTS[kind]
-    axes = {"sketch": {2: "H", 3: "W"}, "mask": {2: "H", 3: "W"}}
+    axes = {name: {2: "H", 3: "W"} for name in INPUT_NAMES}
     axes.update({o: {2: "H", 3: "W"} for o in outputs})
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and InstanceNorm notices
-        torch.onnx.export(module, dummy, str(path), input_names=["sketch", "mask"], output_names=outputs,
+        torch.onnx.export(module, dummy, str(path), input_names=list(INPUT_NAMES), output_names=outputs,
                           dynamic_axes=axes, opset_version=OPSET, dynamo=False, do_constant_folding=True)
     return path
 
@@ -140,6 +140,6 @@ def parity(generator: nn.Module, kind: str, path: Path, inputs: list[tuple[np.nd
     worst = 0.0
     for sketch, mask in inputs:
         ref = torch_outputs(generator, kind, sketch, mask)
-        got = sess.run(GRAPH_OUTPUTS[kind], {"sketch": sketch, "mask": mask})
+        got = sess.run(GRAPH_OUTPUTS[kind], feeds(sketch, mask))
         worst = max(worst, *(float(np.abs(a - b).max()) for a, b in zip(ref, got)))
     return worst

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import yaml
 
+from kiosk.contract.graph import GRID_MULTIPLE, is_grid
 from trainer.errors import TrainerError
 
 PRESETS_DIR = Path(__file__).parent / "presets"
@@ -208,9 +209,9 @@ def config_from_dict(data: dict) -> RunConfig:
 
 
 def validate(cfg: RunConfig) -> None:
-    if cfg.data.crop % 256:
-        raise ConfigError(f"data.crop must be a multiple of 256 (the generator has 8 stride-2 levels); "
-                          f"got {cfg.data.crop}")
+    if not is_grid(cfg.data.crop):
+        raise ConfigError(f"data.crop must be a multiple of {GRID_MULTIPLE} (the generator halves the grid eight "
+                          f"times); got {cfg.data.crop}")
     if cfg.data.patches < 1:
         raise ConfigError("data.patches must be >= 1")
     if cfg.train.steps < 1:

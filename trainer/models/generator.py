@@ -19,9 +19,9 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from kiosk.contract.graph import GRID_MULTIPLE
 from trainer.models.posenc import positional_encoding
 
-MULTIPLE = 256  # 8 stride-2 levels
 
 
 @dataclass
@@ -113,8 +113,8 @@ class TwoBranchUNet(nn.Module):
         assert mask.shape == sketch.shape, f"mask must match sketch {tuple(sketch.shape)}; got {tuple(mask.shape)}"
         if not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export():
             h, w = sketch.shape[-2:]
-            assert h % MULTIPLE == 0 and w % MULTIPLE == 0, \
-                f"input H and W must be multiples of {MULTIPLE} (8 stride-2 levels); got {h}x{w}"
+            assert h % GRID_MULTIPLE == 0 and w % GRID_MULTIPLE == 0, \
+                f"input H and W must be multiples of {GRID_MULTIPLE} (8 stride-2 levels); got {h}x{w}"
 
     def encode(self, sketch: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """Shared part: masked (sketch, PE) -> encoder skips and the trunk after up4."""
