@@ -6,6 +6,7 @@ one (tests/trainer/test_loop.py checks this bit for bit under `torch.use_determi
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -38,12 +39,12 @@ class Trainer:
 
     def __init__(self, cfg: RunConfig, garment_dir: Path, out_dir: Path, *, resume: bool = False,
                  dist: Dist | None = None):
+        cfg = dataclasses.replace(cfg, garment=str(Path(garment_dir).resolve()))
         self.cfg = cfg
         self.out = Path(out_dir)
         self.dist = dist
         self.rank = dist.rank if dist else 0
         self.main = self.rank == 0
-        cfg.garment = str(Path(garment_dir).resolve())
         set_determinism(cfg)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
