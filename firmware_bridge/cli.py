@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 from .config import DEFAULT_PID, DEFAULT_VID, BridgeConfig, EmulatorConfig, FaultConfig
+from .config_loader import build, load_yaml
 from .errors import BridgeError, ConfigError, NoDeviceError
 
 
@@ -28,15 +29,10 @@ def _size(text: str) -> tuple[int, int]:
 
 def _load_config(args) -> BridgeConfig:
     if args.config:
-        import yaml
-
-        try:
-            data = yaml.safe_load(Path(args.config).read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{args.config}: not valid YAML ({exc})") from None
-        if isinstance(data, dict) and isinstance(data.get("bridge"), dict):
+        data = load_yaml(args.config, error=ConfigError, what="bridge config")
+        if isinstance(data.get("bridge"), dict):
             data = data["bridge"]
-        cfg = BridgeConfig.from_mapping(data)
+        cfg = build(BridgeConfig, data, error=ConfigError, base_dir=Path(args.config).parent, where=args.config)
     else:
         cfg = BridgeConfig(type="hid")
     changes = {k: v for k, v in (("vid", args.vid), ("pid", args.pid), ("serial", args.serial),
