@@ -47,5 +47,5 @@ def test_config_is_frozen_and_overrides_take_the_fields_type():
         cfg.train.steps = 3
     with pytest.raises(ConfigError, match="train.deterministic must be true or false"):
         load_config("tiny", overrides=["train.deterministic=maybe"])
-    with pytest.raises(ConfigError, match="optim.betas must be a list of 2 values"):
+    with pytest.raises(ConfigError, match="optim.betas must be a list"):
         load_config("tiny", overrides=["optim.betas=0.5"])
