@@ -27,7 +27,7 @@ class ProbeResult:
 
 def session_options(threads: int, *, spinning: bool = False) -> ort.SessionOptions:
     """The kiosk's ONNX Runtime settings. Idle intra-op threads sleep rather than spin by default: the HTTP and haptic
-    threads share the cores, and spinning made a 256 px full-graph run 26 ms instead of 8 ms on a loaded 2-core box."""
+    threads share the cores, and a spinning pool takes the CPU they need (docs/performance.md, thread spinning)."""
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1

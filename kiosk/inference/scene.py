@@ -437,8 +437,8 @@ class Planner:
         net_sketch = render_sketch(sketch, t, base, placement)
         t4 = time.perf_counter()
         acc.rasterize_ms += 1e3 * (t4 - t3)
-        # At the grid only small gaps are closed (bounded cost: large closing kernels at 512 px take 50-100 ms);
-        # the coarse raster already closed the large ones.
+        # At the grid only small gaps are closed (a closing's cost grows with its kernel, and a large one at the
+        # grid would cost more than the inference); the coarse raster already closed the large ones.
         fine_gap = min(FINE_MAX_GAP, max(3, round(GAP_FRACTION * min(pw, ph) * t.kx)))
         mask = object_mask(net_sketch, max_gap_px=fine_gap)
         if not mask.any():

@@ -6,7 +6,7 @@ Down: LeakyReLU(0.2) -> conv -> InstanceNorm (affine off); the outermost down ha
 innermost no norm (pix2pix convention) - which is also what keeps a 256 px input valid: the 8th down reaches 1x1,
 where an InstanceNorm would zero everything, and it has none. Up: ReLU -> transposed conv -> InstanceNorm.
 Decoder up7..up4 are shared; up3..up0 exist once per branch. Every up layer except the innermost (up7) and the
-outermost (up0) takes the encoder skip of its level, concatenated (reference-notes: the outermost takes no skip).
+outermost (up0) takes the encoder skip of its level, concatenated (as in the authors' code: the outermost takes no skip).
 Outputs: tanh, multiplied by the mask. About 1.47 M parameters.
 
 Input: the masked sketch (N, 1, H, W) in [-1, 1] and the mask (N, 1, H, W) in {0, 1}, exactly the two tensors of
