@@ -22,15 +22,12 @@ from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.bundle.archive import sha256_file
-from kiosk.contract.errors import KioskError
+from exporter.errors import ExportError
+from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
 from kiosk.contract.garment import garment_id
-from kiosk.bundle.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, is_grid
 
 PARITY_BOUND = 1e-4
-
-
-class ExportError(KioskError):
-    """An export that must not produce a bundle; the message says why and what to change."""
 
 
 @dataclass
@@ -124,8 +121,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     if cfg.precision not in ("int8", "fp16", "fp32"):
         raise ExportError(f"precision must be int8, fp16 or fp32; got {cfg.precision!r}")
     for w, h in cfg.sizes:
-        if w % 256 or h % 256 or w < 256 or h < 256:
-            raise ExportError(f"sizes must be multiples of 256 (8 stride-2 levels); got {w}x{h}")
+        if not (is_grid(w) and is_grid(h)):
+            raise ExportError(f"sizes must be multiples of {GRID_MULTIPLE} (the generator halves the grid eight "
+                              f"times); got {w}x{h}")
     generator, info = load_generator(run_dir, cfg.which)
     if info.get("generator_class", "TwoBranchUNet") != "TwoBranchUNet":
         raise ExportError(f"run {run_dir} ({info.get('method')}) uses {info.get('generator_class')}, which has no "

@@ -13,11 +13,10 @@ from typing import Any
 import yaml
 
 from kiosk.contract.errors import KioskError
+from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS
 
 SCHEMA_VERSION = 1
 MAX_MANIFEST_BYTES = 1 << 20
-GRAPH_KINDS = ("full", "tactile", "visual")
-GRAPH_OUTPUTS = {"full": ["visual", "tactile"], "tactile": ["tactile"], "visual": ["visual"]}
 PRECISIONS = ("fp32", "fp16", "int8")
 _ID_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")

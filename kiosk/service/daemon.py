@@ -35,6 +35,7 @@ from kiosk.service.config import KioskConfig
 from kiosk.service.device_output import DeviceOutput
 from kiosk.inference.engine import InferenceError, LoadedBundle, NonFiniteOutput, OutputCache, visual_rgba
 from kiosk.contract.errors import InputError, KioskError
+from kiosk.contract.graph import grid_floor
 from kiosk.ops.health import CheckResult, Heartbeat, HealthMonitor, device_check, health_metrics, http_check
 from kiosk.bundle.manifest import BundleError
 from kiosk.ops.metrics import Registry
@@ -231,8 +232,7 @@ class KioskDaemon:
         results = {}
         for kind in lb.graphs():
             cw, ch = lb.cap(kind)
-            grid = (max(256, min(cw, inf.max_resolution) // 256 * 256),
-                    max(256, min(ch, inf.max_resolution) // 256 * 256))
+            grid = (grid_floor(min(cw, inf.max_resolution)), grid_floor(min(ch, inf.max_resolution)))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
             runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
             ms = min(r[2] for r in runs[2:])

@@ -196,8 +196,8 @@ class KioskServer:
 
             def setup(self):
                 super().setup()
-                # Small answers on a keep-alive connection must not wait for the peer's delayed ACK (Nagle):
-                # that alone costs 40 ms per frame.
+                # Small answers on a keep-alive connection must not wait for the peer's delayed ACK (Nagle): the
+                # delayed-ACK timer (40 ms minimum on Linux) would be added to every frame.
                 self.connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
             def log_message(self, fmt, *args):  # noqa: N802 - the base class's name
