@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
@@ -67,6 +68,7 @@ class Trainer:
         return {"generator": m.generator.state_dict(), "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
+                "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
                 "crop": self.data.side, "config": self.cfg.to_dict(),
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
