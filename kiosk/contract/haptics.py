@@ -47,8 +47,8 @@ PERCEPTUAL_DEFAULTS: dict[str, float] = {
     "jnd_ratio": JND_RATIO,              # level ratio of one just-noticeable step
     "steps_low": 3.0,                    # the fabric's lower quartile sits this many steps above the threshold
     "steps_span": 5.0,                   # ... and its upper quartile this many steps higher
-    "floor_slope": 0.003,                # slopes below this are flat: natural friction, never stretched
-    "steps_per_octave": 2.0,             # at most this many steps per doubling of slope above the floor
+    "floor_slope": 0.002,                # slopes below this are flat: natural friction, never stretched
+    "steps_per_octave": 4.0,             # at most this many steps per doubling of slope above the floor
 }
 
 
@@ -319,8 +319,9 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     no pixel gets more than `steps_per_octave` steps per doubling of its slope above `floor_slope` (below it:
     natural friction). `scale` is ignored. Level = threshold_level * jnd_ratio^steps.
 
-    Then, if `size` = (width, height) is given, resized to the device panel (area averaging when shrinking, linear
-    when enlarging), and quantised: 0 = natural friction, 255 = maximum added friction.
+    If `size` = (width, height) is given, the result has the device panel's pixels: when enlarging, the slopes are
+    interpolated (linear) and mapped at panel pixels, so fine ridges keep their period; when shrinking, the friction
+    is mapped, then area-averaged. Quantised: 0 = natural friction, 255 = maximum added friction.
 
     Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
 
@@ -329,6 +330,18 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         0
     """
     ax, ay = sanitize_gradients(gx, gy, counter=counter)
+    out_size = None
+    if size is not None:
+        w, h = check_size(size, "device pixels")
+        if (w, h) != (ax.shape[1], ax.shape[0]):
+            out_size = (w, h)
+            if not (w <= ax.shape[1] and h <= ax.shape[0]):
+                # Enlarging: interpolate the slopes, then map at the panel's pixels. The map is nonlinear (a
+                # squared slope doubles a ridge's frequency), so mapping first and interpolating the friction
+                # would blur away exactly the fine texture the finger should feel.
+                ax = _resize(ax, (w, h), cv2.INTER_LINEAR)
+                ay = _resize(ay, (w, h), cv2.INTER_LINEAR)
+                out_size = None
     if normalization == "calibrated":
         if scale is None or not isinstance(scale, (int, float, np.floating, np.integer)) \
                 or not np.isfinite(scale) or scale <= 0:
@@ -354,11 +367,13 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         zp = _min_max(np.log10(9.0 * _min_max(gz) + 1.0)).astype(np.float32)
     else:
         raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
-    if size is not None:
-        w, h = check_size(size, "device pixels")
-        if (w, h) != (zp.shape[1], zp.shape[0]):
-            shrink = w <= zp.shape[1] and h <= zp.shape[0]
-            zp = cv2.resize(zp, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-            if zp.ndim == 1:  # cv2 drops a unit axis for 1-pixel-high results
-                zp = zp.reshape(h, w)
+    if out_size is not None:
+        # Shrinking: map, then average friction over each panel pixel (what a finger under it integrates).
+        zp = _resize(np.ascontiguousarray(zp, dtype=np.float32), out_size, cv2.INTER_AREA)
     return np.rint(np.clip(zp, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _resize(a: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
+    w, h = size
+    out = cv2.resize(a, (w, h), interpolation=interpolation)
+    return out.reshape(h, w)  # cv2 drops a unit axis for 1-pixel-high results
