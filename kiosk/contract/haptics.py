@@ -79,6 +79,9 @@ def _finite(arr: np.ndarray, dtype: type, counter: NonFiniteCounter | None) -> n
             if counter is not None:
                 counter.count += int(bad.sum())
             arr = np.where(bad, 0, arr)
+        big = np.finfo(dtype).max if np.issubdtype(dtype, np.floating) else None
+        if big is not None and np.finfo(arr.dtype).max > big:
+            arr = np.clip(arr, -big, big)  # a finite float64 beyond float32's range must not become Inf
     return np.ascontiguousarray(arr, dtype=dtype)
 
 
