@@ -35,7 +35,7 @@ NORMALIZATIONS: tuple[str, ...] = ("calibrated", "quantile", "perceptual")
 # -- the perceptual friction scale (docs/haptics.md has the sources and the reasoning) -------------------------------
 # Electroadhesion adds a normal force that grows with the square of the drive voltage, and the vendor defines a
 # friction level as proportional added friction (0 = natural, 255 = the most the hardware adds). A difference
-# threshold of 1.21 dB in drive amplitude (Ryu et al. 2018, Sci. Rep. 8:5843) is therefore a factor
+# threshold of 1.21 dB in drive amplitude (Ryu et al. 2018, Sci. Rep. 8:4555) is therefore a factor
 # 10^(2 * 1.21 / 20) = 1.32 in friction level: one just-noticeable step (Weber's law above the threshold).
 JND_VOLTAGE_DB = 1.21
 JND_RATIO = float(10.0 ** (2.0 * JND_VOLTAGE_DB / 20.0))
