@@ -181,7 +181,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                                   "the export is wrong")
             path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg)
             if cfg.precision != "fp32":
-                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale)
+                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale,
+                                       normalization=cfg.normalization, constants=constants or None)
                 errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
                 progress(f"export: {kind} graph {cfg.precision} vs fp32: " +
                          ", ".join(f"{k} {v:.4g}" for k, v in err.items()))

@@ -475,20 +475,20 @@ class Planner:
         x1, y1 = ax + box[2] / k + m, ay + box[3] / k + m
         # 2. Graph: what is needed and not cached. 3. Grid and region.
         kind0 = choose_graph(needs, bundle.graphs())
-        box = (x1 - x0, y1 - y0)
+        extent = (x1 - x0, y1 - y0)
         target = self.target_scale(bundle)
         if target is None:
-            grid, scale = grid_for(box, self._cap(bundle, kind0, preview or quick))
+            grid, scale = grid_for(extent, self._cap(bundle, kind0, preview or quick))
             if quick:
-                pp.refine_grid = grid_for(box, self._cap(bundle, kind0, False))[0]
+                pp.refine_grid = grid_for(extent, self._cap(bundle, kind0, False))[0]
         else:
-            grid, scale = physical_grid(box, target, self._cap(bundle, kind0, preview or quick))
-            full_grid, full_scale = physical_grid(box, target, self._cap(bundle, kind0, False))
+            grid, scale = physical_grid(extent, target, self._cap(bundle, kind0, preview or quick))
+            full_grid, full_scale = physical_grid(extent, target, self._cap(bundle, kind0, False))
             if quick:
                 pp.refine_grid = full_grid
             pp.target_scale, pp.felt_ratio = target, target / scale
             if full_scale < target * (1.0 - 1e-6):
-                need = (math.ceil(box[0] * target / MULTIPLE) * MULTIPLE, math.ceil(box[1] * target / MULTIPLE)
+                need = (math.ceil(extent[0] * target / MULTIPLE) * MULTIPLE, math.ceil(extent[1] * target / MULTIPLE)
                         * MULTIPLE)
                 cap = self._cap(bundle, kind0, False)
                 self._warn_once(bundle, "cap", f"garment {panel.bundle}: at this panel's {self.panel_pitch_mm:.3f} "
