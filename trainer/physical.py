@@ -20,8 +20,8 @@ def dataset_pitch_mm(g: Garment) -> tuple[float, str]:
     """(mm per pixel, where it comes from) for one garment folder."""
     if g.full_tactile is not None and g.full_tactile.pixel_pitch_mm > 0:
         return float(g.full_tactile.pixel_pitch_mm), "synthetic full-field truth"
-    v = g.meta.get("pixel_pitch_mm") if isinstance(g.meta, dict) else None
-    if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v > 0:
+    v = g.pixel_pitch_mm  # synthetic.yaml's, when the garment states one
+    if v is not None and np.isfinite(v) and v > 0:
         return float(v), "synthetic.yaml"
     return TOUCHCLOTHING_PITCH_MM, "TouchClothing capture (32 mm / 104 px)"
 
