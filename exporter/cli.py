@@ -50,6 +50,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
     p.add_argument("--model-version", default=None)
     p.add_argument("--display-name", default=None)
+    p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
+                   help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
     return p
 
 
@@ -61,7 +63,8 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     key = load_private_key(args.sign_key) if args.sign_key else None
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
-                       force=args.force, model_version=args.model_version, display_name=args.display_name)
+                       force=args.force, model_version=args.model_version, display_name=args.display_name,
+                       normalization=args.normalization)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
     log_path = args.log or Path(str(args.out) + ".log")

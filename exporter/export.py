@@ -26,6 +26,7 @@ from exporter.errors import ExportError
 from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
 from kiosk.contract.garment import garment_id
 from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, is_grid
+from kiosk.contract.haptics import NORMALIZATIONS
 
 PARITY_BOUND = 1e-4
 
@@ -43,6 +44,7 @@ class ExportConfig:
     force: bool = False
     which: str = "best"
     panel_size: tuple[int, int] = (1280, 800)
+    normalization: str = "perceptual"   # friction mapping the bundle asks for (kiosk.contract.haptics)
     model_version: str | None = None
     display_name: str | None = None
     seed: int = 0
@@ -102,6 +104,19 @@ def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
     return paths
 
 
+def _physical(garment_dir: Path, info: dict, normalization: str) -> tuple[float, dict[str, float]]:
+    """The model's pixel pitch (recorded by the trainer; for older runs, the dataset's) and the friction mapping's
+    constants, calibrated on the garment's measured contact pixels like its friction scale."""
+    from trainer.data.touchclothing import load_garment
+    from trainer.physical import dataset_pitch_mm, friction_constants
+
+    g = load_garment(garment_dir, tactile=normalization == "perceptual")
+    pitch = info.get("pixel_pitch_mm")
+    if not (isinstance(pitch, (int, float)) and not isinstance(pitch, bool) and pitch > 0):
+        pitch = dataset_pitch_mm(g)[0]
+    return float(pitch), friction_constants(g, normalization)
+
+
 def _recipe(cfg: ExportConfig) -> dict[str, str]:
     """How the graphs were made, in the manifest's provenance (the benchmark rebuilds other precisions the same way)."""
     out = {"rewrite": "ConvTranspose(4,2,1) -> Conv3x3 + DepthToSpace" if rewrites_conv_transpose(cfg.precision)
@@ -136,6 +151,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     scale = info.get("friction_scale")
     if not isinstance(scale, (int, float)) or not scale > 0:
         raise ExportError(f"run {run_dir} has no friction calibration (friction_scale) in its checkpoint")
+    if cfg.normalization not in NORMALIZATIONS:
+        raise ExportError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {cfg.normalization!r}")
+    pitch, constants = _physical(garment_dir, info, cfg.normalization)
     with tempfile.TemporaryDirectory(prefix="vtkiosk-export-") as tmp_s:
         tmp = Path(tmp_s)
         assets = _reference_assets(garment_dir, tmp / "assets")
@@ -158,7 +176,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                                   "the export is wrong")
             path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg)
             if cfg.precision != "fp32":
-                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale)
+                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale,
+                                       normalization=cfg.normalization, constants=constants or None)
                 errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
                 progress(f"export: {kind} graph {cfg.precision} vs fp32: " +
                          ", ".join(f"{k} {v:.4g}" for k, v in err.items()))
@@ -186,8 +205,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             checkpoint_sha256=sha256_file(ck_path),
             graphs=graphs,
             friction_scale=float(scale),
-            friction_normalization="calibrated",
-            pixel_pitch_mm=0.3,
+            friction_normalization=cfg.normalization,
+            friction_constants=constants,
+            pixel_pitch_mm=pitch,
             panel_size=list(cfg.panel_size),
             assets={k: f"assets/{k}.png" for k in assets},
             files={},

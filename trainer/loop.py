@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
@@ -72,7 +73,7 @@ class Trainer:
         return {"generator": m.eval_generator.state_dict(), "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
-                "data_profile": self.data.g.profile, "pixel_pitch_mm": self.data.g.pixel_pitch_mm,
+                "data_profile": self.data.g.profile, "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
                 "crop": self.data.side, "config": self.cfg.to_dict(),
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
@@ -181,7 +182,7 @@ class Trainer:
         self.train_seconds += time.perf_counter() - t0
         done = self.step - first
         summary = {"method": self.cfg.method, "garment": self.data.g.name, "data_profile": self.data.g.profile,
-                   "pixel_pitch_mm": self.data.g.pixel_pitch_mm, "step": self.step,
+                   "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0], "step": self.step,
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),

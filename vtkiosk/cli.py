@@ -18,7 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("exporter.cli", "export a trained run as a signed ONNX bundle"),
     "keys": ("exporter.keys_cli", "generate an operator signing key pair"),
     "bundle": ("kiosk.bundle.cli", "inspect, verify, install, activate and roll back bundles"),
-    "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e)"),
+    "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e, haptics)"),
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
     "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),

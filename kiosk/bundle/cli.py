@@ -25,11 +25,37 @@ DEFAULT_STORE = Path("/var/lib/vtkiosk/bundles")
 DEFAULT_CONTROL = Path("/run/vtkiosk/control.sock")
 
 
-def _summary(bundle) -> str:
+def _panel(args) -> tuple[float, str]:
+    """The panel pitch (mm/px) to show a bundle against, and where it came from: --panel-pitch-mm, else the
+    kiosk config's panel (--config, or the default config file when present), else the default known panel."""
+    if getattr(args, "panel_pitch_mm", None) is not None:
+        v = float(args.panel_pitch_mm)
+        if not (0.01 <= v <= 10.0):
+            from kiosk.contract.errors import InputError
+
+            raise InputError(f"--panel-pitch-mm must be from 0.01 to 10 mm per pixel; got {args.panel_pitch_mm}")
+        return v, "--panel-pitch-mm"
+    from kiosk.service.config import PanelConfig, load_config
+
+    path = args.config if getattr(args, "config", None) is not None else (
+        DEFAULT_CONFIG if DEFAULT_CONFIG.is_file() else None)
+    if path is not None:
+        panel = load_config(path).panel
+        return panel.pitch_mm, f"{panel.model or 'panel'} in {path}"
+    panel = PanelConfig()
+    return panel.pitch_mm, f"{panel.model} (default panel)"
+
+
+def _summary(bundle, panel: tuple[float, str] | None = None) -> str:
     m = bundle.manifest
+    consts = ", ".join(f"{k} {v:.4g}" for k, v in sorted(m.friction_constants.items()))
     lines = [f"bundle      {m.garment_id} ({m.display_name}) model {m.model_version}, method {m.method}",
              f"created     {m.created_at} by exporter {m.exporter_version}",
-             f"friction    scale {m.friction_scale:g} ({m.friction_normalization}), pitch {m.pixel_pitch_mm} mm/px",
+             f"friction    {m.friction_normalization} mapping, scale {m.friction_scale:g}"
+             + (f"; constants {consts}" if consts else ""),
+             f"pitch       bundle {m.pixel_pitch_mm:.4g} mm/px (what its model learned at)"
+             + (f"; panel {panel[0]:.4g} mm/px ({panel[1]}): inferred at {panel[0] / m.pixel_pitch_mm:.3f} "
+                f"model px per screen px" if panel else ""),
              f"panel       {m.panel_size[0]}x{m.panel_size[1]}",
              f"signed by   {bundle.key_id or 'NOT CHECKED'}"]
     for kind, g in m.graphs.items():
@@ -52,7 +78,7 @@ def _inspect_or_verify(args) -> int:
     workdir = Path(tempfile.mkdtemp(prefix="vtkiosk-bundle-"))
     try:
         bundle = open_bundle(args.file, trusted, workdir=workdir, allow_unsigned=allow_unsigned)
-        print(_summary(bundle))
+        print(_summary(bundle, _panel(args)))
         if args.action == "verify":
             from kiosk.bundle.probe import probe_bundle
 
@@ -205,6 +231,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         p.add_argument("--trusted-keys", type=Path, default=None, help="folder of trusted *.pub keys")
         p.add_argument("--allow-unsigned", action="store_true", help="development only: skip the signature")
         p.add_argument("--threads", type=int, default=2)
+        p.add_argument("--config", type=Path, default=None,
+                       help=f"kiosk config whose panel the bundle's pitch is shown against (default {DEFAULT_CONFIG} "
+                            "if present, else the default known panel)")
+        p.add_argument("--panel-pitch-mm", type=float, default=None, help="show against this panel pitch instead")
 
     def store_parser(name: str, text: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text, description=text)

@@ -12,8 +12,9 @@ from typing import Any
 
 import yaml
 
-from kiosk.contract.errors import KioskError
+from kiosk.contract.errors import InputError, KioskError
 from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS
+from kiosk.contract.haptics import NORMALIZATIONS, check_constants
 
 SCHEMA_VERSION = 1
 MAX_MANIFEST_BYTES = 1 << 20
@@ -58,6 +59,9 @@ class Manifest:
     metrics: dict[str, float] = field(default_factory=dict)
     errors: dict[str, dict[str, float]] = field(default_factory=dict)
     provenance: dict[str, str] = field(default_factory=dict)
+    # The friction mapping's constants beyond `friction_scale` (the `perceptual` mapping's); empty for bundles
+    # written before they existed, which keep their mapping's behaviour (calibrated or quantile).
+    friction_constants: dict[str, float] = field(default_factory=dict)
 
     def graph(self, kind: str) -> GraphSpec:
         if kind not in self.graphs:
@@ -165,9 +169,14 @@ def manifest_from_dict(doc: Any) -> Manifest:
         graphs[kind] = GraphSpec(_str(spec, "file", PATH_RE, f"graphs.{kind}."), precision, list(outputs),
                                  [_size(s, f"graphs.{kind}.sizes entry") for s in sizes])
     haptics = _mapping(doc, "haptics")
-    _only_keys(haptics, {"friction_scale", "normalization", "pixel_pitch_mm"}, "haptics")
+    _only_keys(haptics, {"friction_scale", "normalization", "pixel_pitch_mm", "constants"}, "haptics")
     normalization = _str(haptics, "normalization", where="haptics.")
-    _need(normalization in ("calibrated", "quantile"), "haptics.normalization must be 'calibrated' or 'quantile'")
+    _need(normalization in NORMALIZATIONS, f"haptics.normalization must be one of {', '.join(NORMALIZATIONS)}")
+    constants = _flat_numbers(haptics.get("constants", {}), "haptics.constants")
+    try:
+        check_constants(normalization, constants)
+    except InputError as exc:
+        raise BundleError(f"manifest: haptics.constants: {exc}") from None
     panel = _mapping(doc, "panel")
     _only_keys(panel, {"size"}, "panel")
     assets = _mapping(doc, "assets")
@@ -208,6 +217,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         metrics=_flat_numbers(doc.get("metrics", {}), "metrics"),
         errors={str(k): _flat_numbers(v, f"errors.{k}") for k, v in errors_doc.items()},
         provenance=dict(provenance),
+        friction_constants=constants,
     )
 
 
@@ -227,6 +237,10 @@ def parse_manifest(data: bytes) -> Manifest:
 
 def manifest_to_dict(m: Manifest) -> dict:
     """The document form of a manifest, in a stable key order (what `dump_manifest` writes)."""
+    haptics: dict[str, Any] = {"friction_scale": m.friction_scale, "normalization": m.friction_normalization,
+                               "pixel_pitch_mm": m.pixel_pitch_mm}
+    if m.friction_constants:  # absent in bundles that have none, so their canonical bytes stay what was signed
+        haptics["constants"] = dict(sorted(m.friction_constants.items()))
     return {
         "schema_version": m.schema_version,
         "garment": {"id": m.garment_id, "display_name": m.display_name},
@@ -235,8 +249,7 @@ def manifest_to_dict(m: Manifest) -> dict:
         "created_at": m.created_at,
         "exporter_version": m.exporter_version,
         "graphs": {k: asdict(g) for k, g in m.graphs.items()},
-        "haptics": {"friction_scale": m.friction_scale, "normalization": m.friction_normalization,
-                    "pixel_pitch_mm": m.pixel_pitch_mm},
+        "haptics": haptics,
         "panel": {"size": list(m.panel_size)},
         "assets": dict(m.assets),
         "metrics": dict(m.metrics),

@@ -22,6 +22,7 @@ from firmware_bridge.config import BridgeConfig
 from firmware_bridge.errors import ConfigError as BridgeConfigError
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import PRECISIONS
+from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
 
 MAX_CONFIG_BYTES = 1 << 20
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
@@ -103,6 +104,55 @@ class InferenceConfig:
 
 
 @dataclass(frozen=True)
+class PanelConfig:
+    """The haptic screen's physical size, so texture is rendered at true scale (`kiosk.service.panels`).
+
+    model: a known panel (its pixels and size); width_mm/height_mm and width_px/height_px, when given, override it
+    (state all four for a panel not in the table). Pixels must be square within 3 %.
+    """
+
+    model: str | None = DEFAULT_PANEL
+    width_mm: float | None = None
+    height_mm: float | None = None
+    width_px: int | None = None
+    height_px: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.model is not None:
+            _check(self.model in KNOWN_PANELS, f"panel.model {self.model!r} is not a known panel (known: "
+                   f"{', '.join(sorted(KNOWN_PANELS))}); state panel.width_mm, height_mm, width_px, height_px instead")
+        w_mm, h_mm, w_px, h_px = self.dims
+        for name, v in (("width_mm", w_mm), ("height_mm", h_mm), ("width_px", w_px), ("height_px", h_px)):
+            _check(v is not None, f"panel.{name} is needed (no panel.model gives it)")
+        _check(10.0 <= w_mm <= 5000.0 and 10.0 <= h_mm <= 5000.0, "panel.width_mm and height_mm must be from 10 to 5000")
+        _check(16 <= w_px <= 16384 and 16 <= h_px <= 16384, "panel.width_px and height_px must be from 16 to 16384")
+        px, py = w_mm / w_px, h_mm / h_px
+        _check(abs(px - py) <= 0.03 * max(px, py), f"panel pixels are not square: {px:.4f} mm wide, {py:.4f} mm high "
+               "(check panel.width_mm, height_mm, width_px, height_px)")
+
+    @property
+    def dims(self) -> tuple:
+        k = KNOWN_PANELS.get(self.model) if self.model else None
+        return (self.width_mm if self.width_mm is not None else (k.width_mm if k else None),
+                self.height_mm if self.height_mm is not None else (k.height_mm if k else None),
+                self.width_px if self.width_px is not None else (k.width_px if k else None),
+                self.height_px if self.height_px is not None else (k.height_px if k else None))
+
+    @property
+    def pitch_mm(self) -> float:
+        """mm per screen pixel (the mean of both axes)."""
+        w_mm, h_mm, w_px, h_px = self.dims
+        return 0.5 * (w_mm / w_px + h_mm / h_px)
+
+    def describe(self) -> dict:
+        w_mm, h_mm, w_px, h_px = self.dims
+        k = KNOWN_PANELS.get(self.model) if self.model else None
+        return {"model": self.model, "size_mm": [w_mm, h_mm], "size_px": [w_px, h_px],
+                "pitch_mm": round(self.pitch_mm, 5),
+                "source": "kiosk config" if (self.width_mm or self.height_mm) or k is None else k.source}
+
+
+@dataclass(frozen=True)
 class HealthConfig:
     """Health checks behind the watchdog and /healthz. stale_after_s: the inference loop must beat this often
     (it beats while idle too); device_max_heartbeat_age_s: the haptic link's last heartbeat must be this fresh."""
@@ -140,6 +190,7 @@ class KioskConfig:
     bundles: tuple[Path, ...] = ()
     device: BridgeConfig = field(default_factory=BridgeConfig)
     inference: InferenceConfig = field(default_factory=InferenceConfig)
+    panel: PanelConfig = field(default_factory=PanelConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     debug: DebugConfig = field(default_factory=DebugConfig)

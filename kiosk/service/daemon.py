@@ -41,7 +41,7 @@ from kiosk.bundle.manifest import BundleError
 from kiosk.ops.metrics import Registry
 from kiosk.ops.notify import Notifier, Watchdog, watchdog_interval_s
 from kiosk.inference.render import FrictionSource
-from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput, choose_graph
+from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput
 from kiosk.service.server import KioskServer, Request, Response
 
 log = logging.getLogger(__name__)
@@ -125,7 +125,8 @@ class KioskDaemon:
                                   timeout_s=config.server.request_timeout_s)
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
-                               margin_px=inf.margin_px, cached=self.cache.has)
+                               margin_px=inf.margin_px, cached=self.cache.has,
+                               panel_pitch_mm=config.panel.pitch_mm)
         self.device = DeviceOutput(config.device, display=display, on_error=self._device_error,
                                    on_texture=self._texture_made)
         self.notifier = notifier if notifier is not None else Notifier.from_env()
@@ -551,13 +552,17 @@ class KioskDaemon:
         bundles = self._bundles  # snapshot: a reload swaps the dict, never mutates it
         quick = req.mode == "final" and self.config.inference.refine
         plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview, quick=quick)
+        held = self._take_reused(plan)
+        if held is None:  # an entry the plan reuses left the cache since: the planner decides again
+            plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview, quick=quick)
+            held = self._take_reused(plan) or {}
         frame = next(self._frame_ids)
         timings = {"queue_ms": 1e3 * (t_start - job.received_at), "rasterize_ms": plan.rasterize_ms,
                    "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
         results: list[PanelResult] = []
         notices: dict[str, str] = {}
         for pp in plan.panels:
-            res = self._render_panel(pp, bundles[pp.bundle], req.preview, timings, notices)
+            res = self._render_panel(pp, bundles[pp.bundle], req.preview, timings, notices, held)
             results.append(res)
         plan_json = plan.to_json()
         self._last_plan = plan_json
@@ -596,22 +601,32 @@ class KioskDaemon:
         return FrameResult(frame, req.mode, plan, results, timings, job.received_at, ready, device_frame,
                            self.notices())
 
+    def _take_reused(self, plan: Plan) -> dict[tuple[str, str], np.ndarray] | None:
+        """The cached outputs the plan reuses, taken before any graph runs (a later put may evict them); None
+        when one is gone already."""
+        held: dict[tuple[str, str], np.ndarray] = {}
+        for pp in plan.panels:
+            for mod in pp.reused:
+                v = self.cache.get(pp.cache_key, mod)
+                if v is None:
+                    return None
+                held[(pp.panel, mod)] = v
+        return held
+
     def _render_panel(self, pp: PanelPlan, bundle: LoadedBundle, preview: bool, timings: dict,
-                      notices: dict) -> PanelResult:
+                      notices: dict, held: dict[tuple[str, str], np.ndarray]) -> PanelResult:
+        """Carry out the planner's decision for one panel: reuse what it reuses, run the graph it chose."""
         if pp.graph == "none" and not pp.reused:
             if pp.needs and pp.region is None:
                 return PanelResult(pp.panel, "empty", pp)  # nothing drawn (yet): an empty, valid result
             return PanelResult(pp.panel, "ok" if not pp.needs else "empty", pp)
-        have: dict[str, np.ndarray] = {}
-        for mod in pp.reused:
-            v = self.cache.get(pp.cache_key, mod)
-            if v is not None:
-                have[mod] = v
+        have = {mod: held[(pp.panel, mod)] for mod in pp.reused if (pp.panel, mod) in held}
         self.m_cache.inc(len(have), result="hit")
-        missing = tuple(m for m in pp.needs if m not in have)
-        if missing:
-            self.m_cache.inc(len(missing), result="miss")
-            pp.graph = choose_graph(missing, bundle.graphs())
+        if len(have) < len(pp.reused):  # the cache was emptied twice while planning (a reload): keep last good
+            return self._keep(pp, "exception", InferenceError(f"{bundle.garment_id}: cached output vanished"),
+                              notices)
+        if pp.graph != "none":
+            self.m_cache.inc(len(pp.needs) - len(have), result="miss")
             try:
                 t0 = time.perf_counter()
                 run = bundle.run(pp.graph, pp.inputs)
@@ -635,7 +650,8 @@ class KioskDaemon:
         res = PanelResult(pp.panel, "ok", pp, visual=have.get("visual") if "visual" in pp.needs else None)
         if "tactile" in pp.needs and not preview:
             res.friction = FrictionSource(pp.panel, have["tactile"], pp.region, pp.clip,
-                                          scale=bundle.friction_scale, normalization=bundle.friction_normalization)
+                                          scale=bundle.friction_scale, normalization=bundle.friction_normalization,
+                                          constants=bundle.friction_constants)
         if not preview:
             self._last_good[pp.panel] = res
         return res
@@ -659,6 +675,7 @@ class KioskDaemon:
         report = self.health.last()
         return {"bundles": {g: b.info() for g, b in sorted(self._bundles.items())},
                 "device": self.device.state(), "notices": self.notices(), "degraded": bool(self.notices()),
+                "scale": self.scale_info(),
                 "health": report.to_json() if report else None, "last_reload": self._last_reload,
                 "cache": {"entries": len(self.cache), "bytes": self.cache.nbytes, "hits": self.cache.hits,
                           "misses": self.cache.misses},
@@ -681,7 +698,15 @@ class KioskDaemon:
 
     def _api_healthz(self, req: Request) -> Response:
         report = self.health.run()  # fresh: the checks only read state the working threads keep
-        return Response.json(report.to_json(), 200 if report.ok else 503)
+        return Response.json({**report.to_json(), "scale": self.scale_info()}, 200 if report.ok else 503)
+
+    def scale_info(self) -> dict:
+        """Both pitches: the panel's (config) and each bundle's (what its model learned at), and the ratio the
+        planner infers at (grid px per screen px)."""
+        panel = self.config.panel.describe()
+        return {"panel": panel, "bundles": {g: {"pixel_pitch_mm": b.pixel_pitch_mm,
+                                                "grid_per_screen_px": round(panel["pitch_mm"] / b.pixel_pitch_mm, 4)}
+                                            for g, b in sorted(self._bundles.items())}}
 
     def _api_bundles(self, req: Request) -> Response:
         parts = req.path.split("/")  # /api/bundles[/<id>/<asset>.png]

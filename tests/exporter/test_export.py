@@ -57,6 +57,10 @@ def test_export_fp16_bundle_verifies(run_dir, tmp_path):
     b = open_bundle(tmp_path / "g.vtb", None, workdir=tmp_path / "w", allow_unsigned=True)
     assert set(b.manifest.graphs) == {"full", "tactile", "visual"}
     assert b.manifest.friction_scale > 0 and b.asset("visual").ndim == 3
+    # The trainer recorded the synthetic garment's own pitch; the mapping and its calibrated constants travel along.
+    assert b.manifest.pixel_pitch_mm == 0.3
+    c = b.manifest.friction_constants
+    assert b.manifest.friction_normalization == "perceptual" and 0 < c["gz_low"] < c["gz_high"]
     assert [r.graph for r in probe_bundle(b)] == ["full", "tactile", "visual"]
 
 

@@ -126,3 +126,29 @@ def test_mutated_valid_config_gives_a_config_or_a_clear_error(section, key, valu
         config_from_mapping(doc)
     except ConfigError as exc:
         assert str(exc)
+
+
+def test_panel_defaults_to_the_known_tanvastouch_panel():
+    cfg = config_from_mapping({"bundles": ["g.vtb"]})
+    assert cfg.panel.model == "tanvastouch-10.1"
+    assert cfg.panel.pitch_mm == pytest.approx(0.1696, abs=5e-4)  # 10.1-inch 16:10 diagonal over 1280 px
+    assert "not read from a vendor datasheet" in cfg.panel.describe()["source"]
+
+
+def test_panel_stated_in_mm_overrides_the_table():
+    cfg = config_from_mapping({"bundles": ["g.vtb"], "panel": {"model": None, "width_mm": 320.0,
+                                                               "height_mm": 200.0, "width_px": 1280,
+                                                               "height_px": 800}})
+    assert cfg.panel.pitch_mm == pytest.approx(0.25) and cfg.panel.describe()["source"] == "kiosk config"
+
+
+@pytest.mark.parametrize("panel, message", [
+    ({"model": "tanvas-99"}, "not a known panel"),
+    ({"model": None, "width_mm": 300.0}, "panel.height_mm is needed"),
+    ({"width_mm": 300.0}, "not square"),
+    ({"model": None, "width_mm": 2.0, "height_mm": 1.0, "width_px": 100, "height_px": 50}, "from 10 to 5000"),
+    ({"width_mm": "wide"}, "panel.width_mm must be a finite number"),
+])
+def test_bad_panels_name_the_key(panel, message):
+    with pytest.raises(ConfigError, match=message):
+        config_from_mapping({"bundles": ["g.vtb"], "panel": panel})
