@@ -27,6 +27,7 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 
 from tuf.api import exceptions as tuf_errors
+from urllib3.exceptions import HTTPError as TransportError
 from tuf.ngclient import Updater, UpdaterConfig
 from tuf.ngclient.urllib3_fetcher import Urllib3Fetcher
 
@@ -90,8 +91,14 @@ class SyncReport:
                 "metadata": self.metadata, "attempts": self.attempts}
 
 
-class _Offline(Exception):
-    """The repository did not answer (or stopped answering): worth another try later."""
+class _Fetcher(Urllib3Fetcher):
+    """ngclient's own fetcher, remembering the last URL it asked for, so a refusal can name the file."""
+
+    last_url = ""
+
+    def _fetch(self, url: str):
+        self.last_url = url
+        return super()._fetch(url)
 
 
 def activate_gated(store: BundleStore, garment: str, version: str, control_socket: Path | None) -> tuple[bool, str]:
@@ -188,9 +195,9 @@ class FleetSync:
         meta = self.state_dir / "metadata"
         meta.mkdir(parents=True, exist_ok=True)
         base = self.cfg.url if self.cfg.url.endswith("/") else self.cfg.url + "/"
-        fetcher = Urllib3Fetcher(socket_timeout=int(max(1, self.cfg.timeout_s)),
+        self._fetcher = _Fetcher(socket_timeout=int(max(1, self.cfg.timeout_s)),
                                  app_user_agent=f"vtkiosk/{self.runtime}")
-        return Updater(str(meta), base + "metadata/", str(downloads), base + "targets/", fetcher=fetcher,
+        return Updater(str(meta), base + "metadata/", str(downloads), base + "targets/", fetcher=self._fetcher,
                        config=UpdaterConfig(app_user_agent=f"vtkiosk/{self.runtime}"), bootstrap=anchor)
 
     def _once(self) -> SyncReport:
@@ -202,15 +209,12 @@ class FleetSync:
                 updater = self._updater(downloads)
                 updater.refresh()
                 releases = self._releases(updater, downloads)
-            except tuf_errors.RepositoryError as exc:
-                return SyncReport("refused", f"refused the repository's metadata: {explain(exc)}",
+            except (tuf_errors.RepositoryError, tuf_errors.DownloadLengthMismatchError) as exc:
+                return SyncReport("refused", f"refused {self._last_file()}: {explain(exc)}",
                                   metadata=self._trusted_metadata())
             except RefusedError as exc:
                 return SyncReport("refused", str(exc), metadata=self._trusted_metadata())
-            except tuf_errors.DownloadLengthMismatchError as exc:
-                return SyncReport("refused", f"refused the repository's metadata: {explain(exc)}",
-                                  metadata=self._trusted_metadata())
-            except (tuf_errors.DownloadError, OSError) as exc:
+            except (tuf_errors.DownloadError, TransportError, OSError) as exc:
                 return SyncReport("offline", f"repository {self.cfg.url} unreachable: {explain(exc)}; keeping the "
                                   "installed bundles", metadata=self._trusted_metadata())
             results = [self._garment(updater, g, rs, downloads) for g, rs in sorted(releases.items())]
@@ -227,6 +231,11 @@ class FleetSync:
                    if r.outcome not in ("up_to_date", "not_offered")]
         detail = "; ".join(changed) if changed else f"{len(results)} garment(s) up to date"
         return SyncReport(worst, detail, results, self._trusted_metadata())
+
+    def _last_file(self) -> str:
+        url = getattr(getattr(self, "_fetcher", None), "last_url", "")
+        base = self.cfg.url if self.cfg.url.endswith("/") else self.cfg.url + "/"
+        return url[len(base):] if url.startswith(base) else (url or "the repository's metadata")
 
     def _trusted_metadata(self) -> dict:
         """Version and expiry of the timestamp and snapshot this kiosk trusts now (from its verified cache)."""
@@ -312,7 +321,7 @@ class FleetSync:
             res.outcome = "refused_target"
             res.detail = f"refused {want.path}: {explain(exc)}"
             return res
-        except (tuf_errors.DownloadError, OSError) as exc:
+        except (tuf_errors.DownloadError, TransportError, OSError) as exc:
             res.outcome = "failed_download"
             res.detail = f"download of {want.path} failed: {explain(exc)}; will retry"
             return res
