@@ -27,17 +27,17 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 
 from tuf.api import exceptions as tuf_errors
-from urllib3.exceptions import HTTPError as TransportError
 from tuf.ngclient import Updater, UpdaterConfig
 from tuf.ngclient.urllib3_fetcher import Urllib3Fetcher
+from urllib3.exceptions import HTTPError as TransportError
 
 from kiosk.bundle.manifest import BundleError
 from kiosk.bundle.store import BundleStore, StoreError
 from kiosk.bundle.version import compare, is_older, parse_version
 from kiosk.fleet import state as fleet_state
-from kiosk.fleet.config import FleetConfig
 from kiosk.fleet.layout import READS, FleetError, Release, RefusedError, index_path, parse_index, \
     release_from_custom
+from kiosk.service.config import FleetConfig
 
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from kiosk.bundle.store import BundleStore
-from kiosk.fleet.config import FleetConfig
+from kiosk.service.config import FleetConfig
 from kiosk.fleet.layout import rollout_bucket
 from kiosk.fleet.repo import FleetRepository
 from kiosk.fleet.sync import FleetSync
