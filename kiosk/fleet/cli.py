@@ -118,6 +118,8 @@ def _status_repo(args) -> int:
         widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
         for row in rows:
             print("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip())
+    for w in repo.offline_expiry_warnings():
+        print(f"warning: {w}", file=sys.stderr)
     if bucket is not None:
         print(f"\nkiosk {args.kiosk_id} is in rollout bucket {bucket} (a rollout of P% reaches it when {bucket} < P)")
     return 0

@@ -51,7 +51,10 @@ def runtime_version() -> str:
 
 def explain(exc: BaseException) -> str:
     """One line: what TUF refused and what it most likely means."""
-    why = " ".join(str(exc).split()) or type(exc).__name__
+    why = " ".join(str(exc).split())
+    if not why:  # ngclient's download errors often carry their reason only as the cause
+        cause = exc.__cause__ or exc.__context__
+        why = type(exc).__name__ + (f" ({' '.join(str(cause).split())})" if cause is not None else "")
     if isinstance(exc, tuf_errors.BadVersionNumberError):
         return f"{why} (rollback: the repository served older metadata than this kiosk has already seen)"
     if isinstance(exc, tuf_errors.ExpiredMetadataError):
@@ -215,8 +218,8 @@ class FleetSync:
             except RefusedError as exc:
                 return SyncReport("refused", str(exc), metadata=self._trusted_metadata())
             except (tuf_errors.DownloadError, TransportError, OSError) as exc:
-                return SyncReport("offline", f"repository {self.cfg.url} unreachable: {explain(exc)}; keeping the "
-                                  "installed bundles", metadata=self._trusted_metadata())
+                return SyncReport("offline", f"repository {self.cfg.url} unreachable ({self._last_file()}): "
+                                  f"{explain(exc)}; keeping the installed bundles", metadata=self._trusted_metadata())
             results = [self._garment(updater, g, rs, downloads) for g, rs in sorted(releases.items())]
         finally:
             shutil.rmtree(downloads, ignore_errors=True)
