@@ -312,17 +312,16 @@ class FleetRepository:
         return done
 
     def rotate_key(self, role: str) -> tuple[str, str, Path]:
-        """Replace a role's key: (old keyid, new keyid, where the old key file went). Top-level roles change in a
-        new root version (signed by the old and the new root key when root itself rotates); channel roles change in
-        a new targets version. The role is then re-signed with its new key, and snapshot and timestamp follow."""
+        """Replace a role's key: (old keyid, new keyid, where the old key file went). A top-level role's key changes
+        in a new root version (signed by the old and the new root key when root itself rotates), a channel's key in a
+        new targets version; the role is then re-signed with its new key, and snapshot and timestamp follow."""
         if role not in ROLES:
             raise FleetError(f"unknown role {role!r} (roles: {', '.join(ROLES)})")
         old = self._signer(role)
         parent = "root" if role in TOP else "targets"
         parent_signer = old if role == "root" else self._signer(parent)
-        for r in ("snapshot", "timestamp"):
-            if r != role:
-                self._signer(r)
+        for r in ("snapshot", "timestamp"):  # every key this needs, before anything changes
+            self._signer(r)
         folder = self._key_dir(role)
         retired = rolekeys.retire(folder, role, old.public_key.keyid)
         try:
@@ -331,36 +330,20 @@ class FleetRepository:
             os.replace(retired, rolekeys.key_file(folder, role))
             raise
         md = self.open(parent)
-        if parent == "root":
-            md.signed.revoke_key(old.public_key.keyid, role)
-            md.signed.add_key(new.public_key, role)
-        else:
-            md.signed.revoke_key(old.public_key.keyid, role)
-            md.signed.add_key(new.public_key, role)
-        md.signed.version += 1
-        if parent == "root":
-            md.signed.expires = self._clock() + EXPIRY["root"]
-            self._write("root", md, *([old, new] if role == "root" else [parent_signer]))
-            if role in ("root",):
-                return old.public_key.keyid, new.public_key.keyid, retired
-        else:
-            md.signed.expires = self._clock() + EXPIRY["targets"]
-            changed = {"targets": (md.signed.version, self._write("targets", md, parent_signer))}
-            ch = self.open(role)
-            self._bump(ch.signed, role)
-            changed[role] = (ch.signed.version, self._write(role, ch, new))
+        md.signed.revoke_key(old.public_key.keyid, role)
+        md.signed.add_key(new.public_key, role)
+        self._bump(md.signed, parent)
+        data = self._write(parent, md, *([old, new] if role == "root" else [parent_signer]))
+        changed = {} if parent == "root" else {"targets": (md.signed.version, data)}
+        if role in ("targets", *CHANNELS):
+            again = self.open(role)
+            self._bump(again.signed, role)
+            changed[role] = (again.signed.version, self._write(role, again, new))
+        if role == "timestamp":
+            snapshot = self._versions("snapshot")[-1]
+            self._timestamp(snapshot, self._path("snapshot", snapshot).read_bytes())
+        elif role != "root":
             self._snapshot_and_timestamp(changed)
-            return old.public_key.keyid, new.public_key.keyid, retired
-        # a top-level role other than root: re-sign it with the new key
-        if role == "targets":
-            t = self.open("targets")
-            self._bump(t.signed, "targets")
-            self._snapshot_and_timestamp({"targets": (t.signed.version, self._write("targets", t, new))})
-        elif role == "snapshot":
-            self._snapshot_and_timestamp({})
-        else:
-            snap_version = self._versions("snapshot")[-1]
-            self._timestamp(snap_version, self._path("snapshot", snap_version).read_bytes())
         return old.public_key.keyid, new.public_key.keyid, retired
 
     def refresh(self) -> list[str]:
