@@ -1,6 +1,7 @@
 """The last sync's result on disk (`<state_dir>/state.json`), and what the daemon makes of it: a /healthz check
 and section, and metrics. The sync job writes; the daemon only reads, so neither waits for the other.
 
+The metadata's age counts from the last sync that verified fresh metadata (whatever it then did with the bundles).
 The fleet check never fails: a kiosk whose repository is offline or whose metadata is stale still serves its
 bundles well, and a failing check would stop the watchdog pings and get a healthy kiosk restarted. Its detail
 (and the `fleet` section of /healthz) says how old the metadata is and what the last sync did.
@@ -64,7 +65,9 @@ def record(path: Path, report: dict, now: float | None = None) -> dict:
     state.update(results_total=counts, outcomes_total=outcomes, last_attempt=now, last_result=result,
                  last_detail=report.get("detail", ""), last_garments=report.get("garments", []))
     if report.get("metadata"):
-        state["metadata"] = report["metadata"]
+        state["metadata"] = {k: v for k, v in report["metadata"].items() if k != "verified"}
+        if report["metadata"].get("verified"):
+            state["metadata_verified_at"] = now
     if result == "ok":
         state["last_success"] = now
         state["consecutive_failures"] = 0
@@ -86,8 +89,8 @@ def section(path: Path, stale_after_s: float, now: float | None = None) -> dict:
     """The `fleet` object of /healthz."""
     now = time.time() if now is None else now
     state = load_state(path)
-    last_ok = state.get("last_success")
-    age = now - last_ok if isinstance(last_ok, (int, float)) else None
+    verified = state.get("metadata_verified_at")
+    age = now - verified if isinstance(verified, (int, float)) else None
     expires = _expiry_epoch(state)
     return {"metadata_age_s": None if age is None else round(age, 1),
             "stale": age is None or age > stale_after_s,
@@ -130,7 +133,8 @@ def register_metrics(registry, path: Path, clock: Callable[[], float] = time.tim
         return value
 
     registry.gauge("vtkiosk_fleet_metadata_age_seconds", "Seconds since the update metadata was last verified fresh."
-                   ).set_function(read(lambda s: clock() - s["last_success"] if "last_success" in s else None))
+                   ).set_function(read(lambda s: clock() - s["metadata_verified_at"] if "metadata_verified_at" in s
+                                       else None))
     registry.gauge("vtkiosk_fleet_timestamp_expires_in_seconds", "Seconds until the trusted timestamp expires."
                    ).set_function(read(lambda s: (e - clock()) if (e := _expiry_epoch(s)) is not None else None))
     registry.gauge("vtkiosk_fleet_sync_consecutive_failures", "Syncs in a row that did not finish ok."

@@ -233,7 +233,8 @@ class FleetSync:
         changed = [f"{r.garment} {r.outcome} {r.offered or ''}".rstrip() for r in results
                    if r.outcome not in ("up_to_date", "not_offered")]
         detail = "; ".join(changed) if changed else f"{len(results)} garment(s) up to date"
-        return SyncReport(worst, detail, results, self._trusted_metadata())
+        # The metadata was verified fresh even when a garment's bundle was then refused: that is its age.
+        return SyncReport(worst, detail, results, {**self._trusted_metadata(), "verified": True})
 
     def _last_file(self) -> str:
         url = getattr(getattr(self, "_fetcher", None), "last_url", "")

@@ -190,6 +190,7 @@ def test_repository_going_away_mid_download_keeps_serving_and_retries(fleet):
     untouched(k)
     state = json.loads((k.sync.state_dir / "state.json").read_text())
     assert state["last_result"] == "offline" and state["consecutive_failures"] == 1 and "last_success" in state
+    assert "metadata_verified_at" in state  # /healthz counts the metadata age from the last verified refresh
     assert not (k.sync.state_dir / "downloads").exists()  # the half file is gone
     # The repository comes back at the same address: the next sync completes.
     with RepoServer(fleet.tmp / "repo", port=fleet.server.port):

@@ -14,7 +14,8 @@ def test_check_never_fails_and_says_how_old_the_metadata_is(tmp_path):
     r = check()
     assert r.ok and "no successful sync yet" in r.detail
     record(path, {"result": "ok", "detail": "1 garment(s) up to date", "garments": [],
-                  "metadata": {"timestamp_version": 7, "timestamp_expires": "1970-01-13T00:00:00+00:00"}},
+                  "metadata": {"timestamp_version": 7, "timestamp_expires": "1970-01-13T00:00:00+00:00",
+                               "verified": True}},
            now=now[0])
     now[0] += 90
     r = check()
@@ -24,13 +25,13 @@ def test_check_never_fails_and_says_how_old_the_metadata_is(tmp_path):
     r = check()
     assert r.ok and "(stale)" in r.detail and "last sync offline (1 in a row): repository unreachable" in r.detail
     s = section(path, 3600, now=now[0])
-    assert s["stale"] and s["consecutive_failures"] == 1 and s["timestamp_version"] == 7
+    assert "verified" not in s and s["stale"] and s["consecutive_failures"] == 1 and s["timestamp_version"] == 7
     assert s["metadata_age_s"] == pytest.approx(7290)
 
 
 def test_torn_state_reads_as_none_and_metrics_render_nan_not_an_error(tmp_path):
     path = tmp_path / STATE_FILE
-    path.write_text('{"last_success": 12')
+    path.write_text('{"metadata_verified_at": 12')
     assert section(path, 60)["metadata_age_s"] is None
     reg = Registry()
     register_metrics(reg, path)
