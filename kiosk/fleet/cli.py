@@ -160,17 +160,20 @@ def _status_kiosk(args) -> int:
 def _sync(args) -> int:
     from kiosk.bundle.store import BundleStore
     from kiosk.fleet.sync import FleetSync
-    from kiosk.ops.logsetup import configure_logging
+    from kiosk.ops.logsetup import configure_logging, stderr_is_journal
 
     cfg = _kiosk_config(args)
-    configure_logging(level=cfg.log_level)
+    # Under systemd the log records (with structured fields) are the report; on a terminal the lines below are,
+    # and only warnings (retries, refusals) are logged beside them.
+    journal = stderr_is_journal()
+    configure_logging(level=cfg.log_level if journal else "WARNING")
     if cfg.store.trusted_keys is None:
         raise FleetError("fleet sync needs store.trusted_keys: fleet bundles are always signature-checked")
     store = BundleStore(cfg.store.root, cfg.store.trusted_keys, probe_threads=cfg.inference.threads)
     report = FleetSync(cfg.fleet, store, control_socket=cfg.control.socket).run()
     if args.json:
         print(json.dumps(report.to_json(), indent=1))
-    else:
+    elif not journal:
         for g in report.garments:
             print(f"{g.garment}: {g.outcome}: {g.detail}")
         print(f"sync {report.result}: {report.detail}")
