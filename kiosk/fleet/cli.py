@@ -215,7 +215,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                     "targets the channels')",
                     offline=True)
     p.add_argument("role", choices=ROLES)
-    repo_parser("refresh", "re-sign the timestamp (and online roles near expiry); run it hourly")
+    repo_parser("refresh", "re-sign the timestamp and the roles near expiry (root and targets with --offline-keys); "
+                "run it hourly", offline=True)
     p = sub.add_parser("status", help="the repository's roles and releases (--repo), or this kiosk's sync state")
     p.add_argument("--repo", type=Path, default=None, help="show this repository (operator side)")
     p.add_argument("--kiosk-id", default=None, help="with --repo: which releases reach this kiosk")

@@ -346,11 +346,21 @@ class FleetRepository:
             self._snapshot_and_timestamp(changed)
         return old.public_key.keyid, new.public_key.keyid, retired
 
-    def refresh(self) -> list[str]:
+    def refresh(self, *, offline_within: timedelta = timedelta(days=30)) -> list[str]:
         """Re-sign the online roles that have less than half their life left (the timestamp always), so kiosks
-        never see expired metadata from an honest repository. Returns what was re-signed."""
+        never see expired metadata from an honest repository; with the offline keys at hand, also root and targets
+        when they expire within `offline_within`. Returns what was re-signed."""
         now = self._clock()
         done, changed = [], {}
+        if self.offline_keys is not None:
+            for role in rolekeys.OFFLINE_ROLES:
+                md = self.open(role)
+                if md.signed.expires - now < offline_within:
+                    self._bump(md.signed, role)
+                    data = self._write(role, md, self._signer(role))
+                    if role == "targets":
+                        changed["targets"] = (md.signed.version, data)
+                    done.append(role)
         for channel in CHANNELS:
             md = self.open(channel)
             if md.signed.expires - now < EXPIRY[channel] / 2:
@@ -373,6 +383,6 @@ class FleetRepository:
         for role in rolekeys.OFFLINE_ROLES:
             exp = self.open(role).signed.expires
             if exp - now < within:
-                out.append(f"{role} metadata expires {exp.isoformat()}: re-sign it with the offline key "
-                           f"(`vtkiosk fleet rotate-key` or a new version) before then")
+                out.append(f"{role} metadata expires {exp.isoformat()}: bring the offline keys and run `vtkiosk "
+                           "fleet refresh --offline-keys DIR` before then")
         return out

@@ -56,3 +56,21 @@ def test_cli_publish_checks_the_bundle_signature_and_errors_are_one_line(fleet, 
     assert "canary   denim-shorts  1" in out and "rollout bucket" in out
     assert vtkiosk(["fleet", "promote", "denim-shorts", "9", *common]) == 2
     assert "not on channel canary" in capsys.readouterr().err
+
+
+def test_refresh_re_signs_what_runs_out_and_kiosks_accept_it(fleet):
+    from datetime import timedelta
+
+    fleet.publish("denim-shorts", "1")
+    k = fleet.kiosk("k", "canary")
+    assert k.sync.run().result == "ok"
+    before = {s.role: s.version for s in fleet.repo.status()}
+    assert fleet.repo.refresh() == ["timestamp"]  # fresh repository: only the timestamp
+    assert fleet.repo.offline_expiry_warnings(within=timedelta(days=400))  # root and targets within 400 days
+    # With the offline keys, roles close to expiry (here: within 400 days, i.e. all) are re-signed for a year.
+    done = fleet.repo.refresh(offline_within=timedelta(days=400))
+    assert done[:2] == ["root", "targets"] and done[-2:] == ["snapshot", "timestamp"]
+    after = {s.role: s.version for s in fleet.repo.status()}
+    assert after["root"] == before["root"] + 1 and after["targets"] == before["targets"] + 1
+    assert k.sync.run().result == "ok"
+    assert (k.sync.state_dir / "metadata" / "root_history" / f"{after['root']}.root.json").is_file()
