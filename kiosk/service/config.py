@@ -22,6 +22,7 @@ from firmware_bridge.config import BridgeConfig
 from firmware_bridge.errors import ConfigError as BridgeConfigError
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import PRECISIONS
+from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
 from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -184,6 +185,47 @@ class DebugConfig:
 
 
 @dataclass(frozen=True)
+class FleetConfig:
+    """Fleet updates (`vtkiosk fleet sync`, docs/fleet.md); no url: this kiosk takes no part in a fleet.
+
+    url: the repository's base URL (metadata/ and targets/ under it). root: the trust anchor, the root metadata from
+    the key ceremony, provisioned with the kiosk (never fetched from the server). kiosk_id: this kiosk's name, whose
+    hash decides its staged-rollout bucket. channel: canary or stable. state_dir: TUF metadata cache, downloads and
+    the last sync's result. attempts, backoff_s: tries per sync while the repository does not answer, waiting
+    backoff_s, then twice that ... (at most max_backoff_s, jittered). stale_after_s: /healthz calls the metadata
+    stale past this age (the kiosk keeps serving).
+    """
+
+    url: str | None = None
+    root: Path | None = None
+    kiosk_id: str | None = None
+    channel: str = "stable"
+    state_dir: Path = Path("/var/lib/vtkiosk/fleet")
+    attempts: int = 3
+    backoff_s: float = 5.0
+    max_backoff_s: float = 60.0
+    timeout_s: float = 30.0
+    stale_after_s: float = 86400.0
+
+    def __post_init__(self) -> None:
+        _check(self.channel in CHANNELS, f"fleet.channel must be one of {', '.join(CHANNELS)}")
+        _check(1 <= self.attempts <= 10, "fleet.attempts must be from 1 to 10")
+        _check(0 <= self.backoff_s <= 3600 and 0 <= self.max_backoff_s <= 3600,
+               "fleet.backoff_s and fleet.max_backoff_s must be from 0 to 3600 seconds")
+        _check(0 < self.timeout_s <= 600, "fleet.timeout_s must be > 0 and at most 600 seconds")
+        _check(self.stale_after_s > 0, "fleet.stale_after_s must be > 0 seconds")
+        if self.url is not None:
+            _check(self.url.startswith(("http://", "https://")), "fleet.url must be an http:// or https:// URL")
+            _check(self.root is not None, "fleet.root (the trust anchor root.json) is required with fleet.url")
+            _check(self.kiosk_id is not None and bool(KIOSK_ID_RE.match(self.kiosk_id)),
+                   "fleet.kiosk_id is required with fleet.url (1 to 128 letters, digits, '.', '_', ':', '-')")
+
+    @property
+    def enabled(self) -> bool:
+        return self.url is not None
+
+
+@dataclass(frozen=True)
 class KioskConfig:
     server: ServerConfig = field(default_factory=ServerConfig)
     store: StoreConfig = field(default_factory=StoreConfig)
@@ -194,6 +236,7 @@ class KioskConfig:
     health: HealthConfig = field(default_factory=HealthConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     debug: DebugConfig = field(default_factory=DebugConfig)
+    fleet: FleetConfig = field(default_factory=FleetConfig)
     state_dir: Path | None = None
     log_level: str = "INFO"
 
@@ -308,6 +351,8 @@ def config_from_mapping(data: Any, *, base_dir: Path | None = None) -> KioskConf
         store=dataclasses.replace(cfg.store, root=rel(cfg.store.root) or cfg.store.root,
                                   trusted_keys=rel(cfg.store.trusted_keys) or cfg.store.trusted_keys),
         control=dataclasses.replace(cfg.control, socket=rel(cfg.control.socket) or cfg.control.socket),
+        fleet=dataclasses.replace(cfg.fleet, root=rel(cfg.fleet.root) or cfg.fleet.root,
+                                  state_dir=rel(cfg.fleet.state_dir) or cfg.fleet.state_dir),
         state_dir=rel(cfg.state_dir) or cfg.state_dir)
 
 

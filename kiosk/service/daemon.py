@@ -173,6 +173,10 @@ class KioskDaemon:
                                      "Non-finite tactile values replaced by 0 in friction maps.")
         self.m_device_up.set_function(lambda: 1.0 if self.device.up else 0.0)
         self.m_degraded.set_function(lambda: 1.0 if self._notices else 0.0)
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, register_metrics
+
+            register_metrics(r, self.config.fleet.state_dir / STATE_FILE)
 
     def _device_error(self, kind: str, exc: BaseException) -> None:
         self.m_device_errors.inc(kind=kind)
@@ -398,6 +402,11 @@ class KioskDaemon:
             self.add_health_check("device", dev)
         self.add_health_check("server", http_check(self.server.url + "api/ping", timeout_s=1.0))
         self.add_health_check("bundle", self._bundle_check)
+        if self.config.fleet.enabled:  # informational: an offline repository must not restart a serving kiosk
+            from kiosk.fleet.state import STATE_FILE, fleet_check
+
+            fleet = self.config.fleet
+            self.add_health_check("fleet", fleet_check(fleet.state_dir / STATE_FILE, fleet.stale_after_s))
         interval = watchdog_interval_s() or h.interval_s
         self.watchdog = Watchdog(self.notifier, self.health, interval, on_report=health_metrics(self.metrics))
         self.watchdog.start()
@@ -698,7 +707,12 @@ class KioskDaemon:
 
     def _api_healthz(self, req: Request) -> Response:
         report = self.health.run()  # fresh: the checks only read state the working threads keep
-        return Response.json({**report.to_json(), "scale": self.scale_info()}, 200 if report.ok else 503)
+        body = {**report.to_json(), "scale": self.scale_info()}
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, section
+
+            body["fleet"] = section(self.config.fleet.state_dir / STATE_FILE, self.config.fleet.stale_after_s)
+        return Response.json(body, 200 if report.ok else 503)
 
     def scale_info(self) -> dict:
         """Both pitches: the panel's (config) and each bundle's (what its model learned at), and the ratio the
