@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import ipaddress
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ from kiosk.bundle.manifest import PRECISIONS
 MAX_CONFIG_BYTES = 1 << 20
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
+_NAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]{0,62}\.?)*$")
 SIZE_MULTIPLE = 256  # exported graphs take H and W in multiples of 256 (eight stride-2 levels)
 
 
@@ -41,10 +43,17 @@ class ServerConfig:
     port: int = 8765
     allow_non_loopback: bool = False
     request_timeout_s: float = 10.0
+    header_timeout_s: float = 10.0     # a request (line, headers, body) must arrive within this
+    max_connections: int = 64          # connections served at once; the next gets a 503
+    names: tuple[str, ...] = ()        # Host names the page may be reached by, beside the listen address
 
     def __post_init__(self) -> None:
         _check(0 <= self.port <= 65535, "server.port must be from 0 (any free port) to 65535")
         _check(self.request_timeout_s > 0, "server.request_timeout_s must be > 0")
+        _check(0 < self.header_timeout_s <= 300, "server.header_timeout_s must be > 0 and at most 300")
+        _check(1 <= self.max_connections <= 4096, "server.max_connections must be from 1 to 4096")
+        for name in self.names:
+            _check(bool(_NAME_RE.match(name)), f"server.names: {name[:80]!r} is not a host name")
         if not self.allow_non_loopback and not is_loopback(self.host):
             raise ConfigError(f"server.host {self.host!r} is not a loopback address; the kiosk page has no login, so "
                               "it is served on 127.0.0.1 only (set server.allow_non_loopback: true to override)")
@@ -287,10 +296,21 @@ def load_config(path: Path | None, overrides: dict | None = None) -> KioskConfig
             raise ConfigError(f"{path}: not UTF-8 text") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        except RecursionError:
+            raise ConfigError(f"{path}: nested too deeply to be a kiosk config") from None
+        except ValueError as exc:   # e.g. an integer of thousands of digits
+            raise ConfigError(f"{path}: not a usable YAML value ({' '.join(str(exc).split())[:120]})") from None
         if doc is None:
             doc = {}
         if not isinstance(doc, dict):
             raise ConfigError(f"{path}: the config must be a mapping of sections; got {type(doc).__name__}")
+        if overrides:
+            # The file must be valid on its own: an option that overrides a bad value today hides it until the
+            # day the kiosk starts without that option.
+            try:
+                config_from_mapping(doc, base_dir=path.parent)
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
     doc = _merge(doc, overrides or {})
     try:
         return config_from_mapping(doc, base_dir=path.parent if path is not None else None)
