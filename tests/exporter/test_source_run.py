@@ -11,6 +11,12 @@ from kiosk.bundle.manifest import BundleError, manifest_from_dict, manifest_to_d
 from tests.kiosk.bundle_factory import base_manifest
 
 
+def _doc(**overrides) -> dict:
+    m = base_manifest(**overrides)
+    files = {g.file: "0" * 64 for g in m.graphs.values()} | {p: "0" * 64 for p in m.assets.values()}
+    return manifest_to_dict(base_manifest(files=files, **overrides))
+
+
 def test_a_run_under_the_runs_root_is_named_relative_to_it(tmp_path):
     run = tmp_path / "runs" / "denim" / "ours-seed0"
     run.mkdir(parents=True)
@@ -33,13 +39,13 @@ def test_the_recorded_name_never_holds_an_absolute_path_and_the_manifest_takes_i
     for run in (root.joinpath(*parts), Path("/other").joinpath(*parts)):
         name = source_run_name(run, root)
         assert not name.startswith("/") and ".." not in name.split("/")
-        doc = manifest_to_dict(base_manifest(source_run=name))
+        doc = _doc(source_run=name)
         assert manifest_from_dict(doc).source_run == name
 
 
 def test_the_manifest_refuses_a_build_machine_path():
     for bad in ("/home/builder/runs/denim", "../runs/denim", "runs/../../etc", "C:\\runs\\denim"):
-        doc = manifest_to_dict(base_manifest())
+        doc = _doc()
         doc["model"]["source_run"] = bad
         try:
             manifest_from_dict(doc)
