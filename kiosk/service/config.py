@@ -21,6 +21,7 @@ import yaml
 
 from firmware_bridge.config import BridgeConfig
 from firmware_bridge.errors import ConfigError as BridgeConfigError
+from kiosk.contract import yamlload
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import PRECISIONS
 
@@ -291,15 +292,11 @@ def load_config(path: Path | None, overrides: dict | None = None) -> KioskConfig
         if len(data) > MAX_CONFIG_BYTES:
             raise ConfigError(f"{path}: {len(data)} bytes is too large for a kiosk config")
         try:
-            doc = yaml.safe_load(data.decode("utf-8"))
+            doc = yamlload.safe_load(data.decode("utf-8"))
         except UnicodeDecodeError:
             raise ConfigError(f"{path}: not UTF-8 text") from None
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
-        except RecursionError:
-            raise ConfigError(f"{path}: nested too deeply to be a kiosk config") from None
-        except ValueError as exc:   # e.g. an integer of thousands of digits
-            raise ConfigError(f"{path}: not a usable YAML value ({' '.join(str(exc).split())[:120]})") from None
+            raise ConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
         if doc is None:
             doc = {}
         if not isinstance(doc, dict):

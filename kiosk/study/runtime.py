@@ -20,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from kiosk.contract import yamlload
 from kiosk.service.config import KioskConfig, config_from_mapping
 from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
@@ -128,11 +129,11 @@ def _kiosk_doc(config: StudyConfig) -> tuple[dict, Path]:
         return dict(config.kiosk), config.base_dir
     path = Path(config.kiosk)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yamlload.safe_load(path.read_text())
     except OSError as exc:
         raise StudyConfigError(f"cannot read the study's kiosk config {path}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise StudyConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
     if not isinstance(doc, dict):
         raise StudyConfigError(f"{path}: the kiosk config must be a mapping")
     ctl = doc.get("control")
