@@ -6,8 +6,8 @@ lists and mappings are refused, unknown keys are refused, nesting is bounded, an
 
 `model.version` follows the grammar and ordering of `kiosk.bundle.version` (e.g. "2026.11.21-1" < "2026.11.22-1",
 "1.9" < "1.10"): the store refuses to install or activate a version below a garment's newest installed one.
-`model.source_run` names the training run without the build machine's paths: a path relative to the runs folder,
-or `sha256:<hex>` of the run's location when it lies outside it.
+The exporter writes `model.source_run` without the build machine's paths (a path relative to the runs folder, or
+`sha256:<hex>` of the run's location when it lies outside it); older bundles with an absolute path still load.
 """
 from __future__ import annotations
 
@@ -171,10 +171,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         parse_version(model.get("version"))
     except VersionError as exc:
         raise BundleError(f"manifest: model.{exc}") from None
-    source_run = _str(model, "source_run", where="model.")
-    _need(not source_run.startswith("/") and ".." not in source_run.split("/") and "\\" not in source_run,
-          "model.source_run must name the run relative to the runs folder (or sha256:<hex>), not a path of the "
-          "build machine")
+    source_run = _str(model, "source_run", where="model.")   # bundles exported before 0.2 carry absolute paths
     graphs_doc = _mapping(doc, "graphs")
     _need(bool(graphs_doc), "graphs must name at least one graph")
     graphs: dict[str, GraphSpec] = {}

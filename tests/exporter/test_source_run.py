@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from exporter.export import source_run_name
-from kiosk.bundle.manifest import BundleError, manifest_from_dict, manifest_to_dict
+from kiosk.bundle.manifest import manifest_from_dict, manifest_to_dict
 from tests.kiosk.bundle_factory import base_manifest
 
 
@@ -41,15 +41,3 @@ def test_the_recorded_name_never_holds_an_absolute_path_and_the_manifest_takes_i
         assert not name.startswith("/") and ".." not in name.split("/")
         doc = _doc(source_run=name)
         assert manifest_from_dict(doc).source_run == name
-
-
-def test_the_manifest_refuses_a_build_machine_path():
-    for bad in ("/home/builder/runs/denim", "../runs/denim", "runs/../../etc", "C:\\runs\\denim"):
-        doc = _doc()
-        doc["model"]["source_run"] = bad
-        try:
-            manifest_from_dict(doc)
-        except BundleError as exc:
-            assert "source_run" in str(exc)
-        else:
-            raise AssertionError(f"{bad!r} was accepted")
