@@ -270,6 +270,22 @@ def config_from_mapping(data: Any, *, base_dir: Path | None = None) -> KioskConf
         state_dir=rel(cfg.state_dir) or cfg.state_dir)
 
 
+def _check_sections(doc: dict, sections: list[str]) -> None:
+    """Validate these sections of a config document on their own (ConfigError naming the key)."""
+    hints = get_type_hints(KioskConfig)
+    for name in sections:
+        hint = hints.get(name)
+        if hint is None:
+            continue
+        if hint is BridgeConfig:
+            try:
+                BridgeConfig.from_mapping(doc[name])
+            except (BridgeConfigError, TypeError, ValueError) as exc:
+                raise ConfigError(f"{name}: {exc}") from None
+        elif dataclasses.is_dataclass(hint):
+            _build(hint, doc[name], f"{name}.")
+
+
 def _merge(doc: dict, overrides: dict) -> dict:
     out = dict(doc)
     for k, v in overrides.items():
@@ -301,13 +317,12 @@ def load_config(path: Path | None, overrides: dict | None = None) -> KioskConfig
             doc = {}
         if not isinstance(doc, dict):
             raise ConfigError(f"{path}: the config must be a mapping of sections; got {type(doc).__name__}")
-        if overrides:
-            # The file must be valid on its own: an option that overrides a bad value today hides it until the
-            # day the kiosk starts without that option.
-            try:
-                config_from_mapping(doc, base_dir=path.parent)
-            except ConfigError as exc:
-                raise ConfigError(f"{where}: {exc}") from None
+        # Every section an option overrides must be valid in the file too: an option that hides a bad value
+        # today leaves the kiosk unable to start the day it runs without that option.
+        try:
+            _check_sections(doc, [k for k in (overrides or {}) if isinstance(doc.get(k), dict)])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
     doc = _merge(doc, overrides or {})
     try:
         return config_from_mapping(doc, base_dir=path.parent if path is not None else None)
