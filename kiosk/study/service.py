@@ -282,8 +282,12 @@ class StudyService:
             self._event("resume_impossible", participant=s.participant, session=s.session, detail=str(exc))
             return
         self._active = _Active(schedule)
-        self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
-                        at_trial=s.next_trial(), **self.log.stamp())
+        try:
+            self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
+                            at_trial=s.next_trial(), **self.log.stamp())
+        except StudyLogWriteError as exc:   # started on a full disk: wait for space like a running study does
+            self._log_down(exc)
+            return
         self._present_next()
 
     def _check_resumable(self, started: dict, schedule: Schedule) -> None:

@@ -20,6 +20,17 @@ def _answer(page: StudyPage, side: str = "left") -> tuple[int, dict]:
     return page.raw("POST", "/api/study/choice", {"token": tr["token"], "side": side})
 
 
+def _answer_until_refused(page: StudyPage, acked: list[int]) -> tuple[int, dict]:
+    """Tap until the log refuses (a small record may still fit in the log file's last page)."""
+    for _ in range(6):
+        status, doc = _answer(page)
+        if status != 200:
+            return status, doc
+        assert doc["recorded"], doc
+        acked.append(doc["seq"])
+    raise AssertionError("the full disk never refused a record")
+
+
 def test_a_full_disk_mid_study_is_visible_loses_nothing_and_recording_resumes(tmp_path, study_env, caplog):
     with small_disk(tmp_path / "disk", size_kib=4096) as disk:
         cfg = load_study_config(write_study(tmp_path, study_env, log=str(disk.folder / "study.jsonl")))
@@ -37,19 +48,22 @@ def test_a_full_disk_mid_study_is_visible_loses_nothing_and_recording_resumes(tm
 
             disk.fill(slack=64)
             with caplog.at_level(logging.ERROR, logger="kiosk.study.service"):
-                for _ in range(6):   # a record may still fit in the log file's last page
-                    status, doc = _answer(page)
-                    if status != 200:
-                        break
-                    assert doc["recorded"]
-                    acked.append(doc["seq"])
+                status, doc = _answer_until_refused(page, acked)
             assert status == 503 and doc["recorded"] is False and "call the researcher" in doc["notice"], doc
             assert page.state() == {"state": "call_researcher", "notice": doc["notice"]}
             status, health = page.raw("GET", "/healthz")
             check = health["checks"]["study_log"]
             assert status == 503 and not check["ok"] and "cannot write to the study log" in check["detail"], health
             assert any("call the researcher" in r.getMessage() for r in caplog.records)
-            assert not operator(sock, "study.status")["log_error"] is None
+            assert operator(sock, "study.status")["log_error"] is not None
+
+            # a restart on the full disk (what the stopped watchdog pings lead to) comes back in the same state
+            rt.close()
+            rt = StudyRuntime(cfg, port=0, device="emulated")
+            page = StudyPage(rt.daemon.server.url)
+            if page.state()["state"] == "trial":   # its resume record may still have fit in the file's last page
+                assert _answer_until_refused(page, acked)[0] == 503
+            assert page.state()["state"] == "call_researcher"
 
             disk.free()
             deadline = time.monotonic() + 20
