@@ -24,6 +24,7 @@ from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.bundle.archive import sha256_file
 from kiosk.contract.errors import KioskError
+from kiosk.contract.garment import garment_id
 from kiosk.bundle.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
 PARITY_BOUND = 1e-4
@@ -104,12 +105,6 @@ def _numbers(doc, prefix: str = "") -> dict[str, float]:
     return out
 
 
-def _garment_id(name: str) -> str:
-    material = name.removeprefix("singleskit_").split("_padded_")[0]
-    out = "".join(("-" + c.lower()) if c.isupper() and i else c.lower() for i, c in enumerate(material))
-    return "".join(c for c in out if c.isalnum() or c in "-._")[:64] or "garment"
-
-
 def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
     """Sketch, mask and visual of the camera frame (not the padding): what the A/B study and attract screen show."""
     from trainer.data.touchclothing import load_garment
@@ -170,6 +165,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         graphs: dict[str, GraphSpec] = {}
         parities: dict[str, float] = {}
         errors: dict[str, dict[str, float]] = {}
+        progress(f"export: {len(cfg.graphs)} graph(s) at {cfg.precision}, sizes "
+                 + ", ".join(f"{w}x{h}" for w, h in cfg.sizes))
         for kind in cfg.graphs:
             fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0],
                                 rewrite=rewrites_conv_transpose(cfg.precision))
@@ -198,7 +195,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0)
         manifest = Manifest(
             schema_version=SCHEMA_VERSION,
-            garment_id=_garment_id(garment_dir.name),
+            garment_id=garment_id(garment_dir.name),
             display_name=cfg.display_name or garment_dir.name.removeprefix("singleskit_").split("_padded_")[0],
             model_version=cfg.model_version or f"{now:%Y%m%d}-{info.get('step', 0)}",
             method=str(info.get("method") or run_cfg.method),
@@ -219,5 +216,6 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                         "checkpoint": ck_path.name, **_recipe(cfg),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
+        progress("export: writing" + (" and signing" if signing_key is not None else "") + " the bundle")
         written = write_bundle(out, manifest, sources, signing_key=signing_key)
     return ExportReport(written, parities, errors, Path(out))

@@ -22,7 +22,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
     "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),
-    "demo": ("vtkiosk.demo", "the main job: the kiosk on a demo bundle with the emulated device"),
+    "demo": ("vtkiosk.demo", "the main job: the kiosk on the trained demo catalogue with the emulated device"),
+    "catalogue": ("vtkiosk.catalogue", "pack trained runs into the demo catalogue, check the committed one"),
 }
 
 

@@ -23,6 +23,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from kiosk.contract.errors import KioskError
+from kiosk.contract.garment import garment_id
+
 DEFAULT_CONFIG = Path("/etc/vtkiosk/kiosk.yaml")
 DEFAULT_STORE = Path("/var/lib/vtkiosk/bundles")
 DEFAULT_CONTROL = Path("/run/vtkiosk/control.sock")
@@ -71,6 +74,10 @@ def _inspect_or_verify(args) -> int:
 
 # -- the store ---------------------------------------------------------------------------------------------------
 
+class StoreMissing(KioskError):
+    """`bundle list` on a folder that holds no store: a typo, not an empty kiosk."""
+
+
 class _Settings:
     """Store root, trusted keys, unsigned policy and control socket: options over the kiosk config over defaults."""
 
@@ -100,6 +107,9 @@ def _precision_text(precisions: dict[str, str]) -> str:
 
 
 def _list(settings: _Settings, as_json: bool) -> int:
+    if not Path(settings.root).is_dir():
+        raise StoreMissing(f"no bundle store at {settings.root} (install a bundle there first, or name the store "
+                           "with --store or store.root in the config)")
     items = settings.store().list()
     if as_json:
         print(json.dumps([s.to_json() for s in items], indent=1))
@@ -254,6 +264,8 @@ def _log_store_decisions() -> None:
 
 def main(argv: list[str], prog: str = "vtkiosk bundle") -> int:
     args = build_parser(prog).parse_args(argv)
+    if getattr(args, "garment", None):
+        args.garment = garment_id(args.garment)   # DenimShorts and the dataset folder name work too
     if args.action in ("inspect", "verify"):
         return _inspect_or_verify(args)
     _log_store_decisions()

@@ -62,7 +62,7 @@ class ServerConfig:
 
 @dataclass(frozen=True)
 class StoreConfig:
-    """Where installed bundles live (O's `kiosk.bundle.store.BundleStore` layout) and which keys may sign them."""
+    """Where installed bundles live (the `kiosk.bundle.store.BundleStore` layout) and which keys may sign them."""
 
     root: Path | None = None
     trusted_keys: Path | None = None

@@ -340,7 +340,12 @@ class KioskDaemon:
             report = self.reload()
             if not self._bundles:
                 reasons = "; ".join(f"{e['source']}: {e['reason']}" for e in report["failed"] + report["kept"])
-                raise BundleError(f"no bundle could be loaded ({reasons or 'none configured'})")
+                if not reasons:
+                    where = f"the store {self.config.store.root} has no active bundle and " \
+                        if self.config.store.root else ""
+                    raise BundleError(f"nothing to serve: {where}no bundle is configured; install one with "
+                                      "`vtkiosk bundle install FILE --activate`, or pass --bundle FILE")
+                raise BundleError(f"no bundle could be loaded ({reasons})")
             self.device.start()
             self._stop.clear()
             self._loop_thread = threading.Thread(target=self._loop, name="vtkiosk-inference", daemon=True)

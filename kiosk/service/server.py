@@ -413,7 +413,7 @@ class KioskServer:
             self._httpd = _HTTPServer((self.host, self.port), _Handler, self.max_connections)
         except OSError as exc:
             raise ConfigError(f"cannot listen on {self.host}:{self.port} ({exc.strerror or exc}); is another "
-                              "kiosk running, or pick another server.port") from None
+                              "kiosk running? Choose another port (--port, or server.port in the config)") from None
         self.port = self._httpd.server_address[1]
         self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2},
                                         name="vtkiosk-http", daemon=True)
