@@ -4,6 +4,7 @@ its measured error against fp32, the garment's friction calibration and referenc
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import platform
 import socket
@@ -48,6 +49,7 @@ class ExportConfig:
     model_version: str | None = None
     display_name: str | None = None
     seed: int = 0
+    runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
 
 
 @dataclass
@@ -56,6 +58,21 @@ class ExportReport:
     parity: dict[str, float]
     errors: dict[str, dict[str, float]]
     out: Path
+
+
+def source_run_name(run_dir: Path, runs_root: Path | None = None) -> str:
+    """How the manifest names the training run: its path relative to `runs_root` (default: the working directory),
+    or, for a run outside it, `sha256:` and the first 16 hex digits of the SHA-256 of its resolved path. Never an
+    absolute path: a bundle travels to kiosks and must not carry the build machine's layout."""
+    run = Path(run_dir).resolve()
+    root = Path(runs_root if runs_root is not None else Path.cwd()).resolve()
+    try:
+        rel = run.relative_to(root).as_posix()
+    except ValueError:
+        rel = ""
+    if rel and rel != ".":
+        return rel
+    return "sha256:" + hashlib.sha256(str(run).encode()).hexdigest()[:16]
 
 
 def rewrites_conv_transpose(precision: str) -> bool:
@@ -201,7 +218,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             method=str(info.get("method") or run_cfg.method),
             created_at=now.isoformat().replace("+00:00", "Z"),
             exporter_version=exporter.__version__,
-            source_run=str(run_dir.resolve()),
+            source_run=source_run_name(run_dir, cfg.runs_root),
             checkpoint_sha256=sha256_file(ck_path),
             graphs=graphs,
             friction_scale=float(scale),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import ipaddress
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -20,6 +21,7 @@ import yaml
 
 from firmware_bridge.config import BridgeConfig
 from firmware_bridge.errors import ConfigError as BridgeConfigError
+from kiosk.contract import yamlload
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import PRECISIONS
 from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
@@ -28,6 +30,7 @@ from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
 MAX_CONFIG_BYTES = 1 << 20
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
+_NAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]{0,62}\.?)*$")
 SIZE_MULTIPLE = 256  # exported graphs take H and W in multiples of 256 (eight stride-2 levels)
 
 
@@ -43,10 +46,17 @@ class ServerConfig:
     port: int = 8765
     allow_non_loopback: bool = False
     request_timeout_s: float = 10.0
+    header_timeout_s: float = 10.0     # a request (line, headers, body) must arrive within this
+    max_connections: int = 64          # connections served at once; the next gets a 503
+    names: tuple[str, ...] = ()        # Host names the page may be reached by, beside the listen address
 
     def __post_init__(self) -> None:
         _check(0 <= self.port <= 65535, "server.port must be from 0 (any free port) to 65535")
         _check(self.request_timeout_s > 0, "server.request_timeout_s must be > 0")
+        _check(0 < self.header_timeout_s <= 300, "server.header_timeout_s must be > 0 and at most 300")
+        _check(1 <= self.max_connections <= 4096, "server.max_connections must be from 1 to 4096")
+        for name in self.names:
+            _check(bool(_NAME_RE.match(name)), f"server.names: {name[:80]!r} is not a host name")
         if not self.allow_non_loopback and not is_loopback(self.host):
             raise ConfigError(f"server.host {self.host!r} is not a loopback address; the kiosk page has no login, so "
                               "it is served on 127.0.0.1 only (set server.allow_non_loopback: true to override)")
@@ -356,6 +366,22 @@ def config_from_mapping(data: Any, *, base_dir: Path | None = None) -> KioskConf
         state_dir=rel(cfg.state_dir) or cfg.state_dir)
 
 
+def _check_sections(doc: dict, sections: list[str]) -> None:
+    """Validate these sections of a config document on their own (ConfigError naming the key)."""
+    hints = get_type_hints(KioskConfig)
+    for name in sections:
+        hint = hints.get(name)
+        if hint is None:
+            continue
+        if hint is BridgeConfig:
+            try:
+                BridgeConfig.from_mapping(doc[name])
+            except (BridgeConfigError, TypeError, ValueError) as exc:
+                raise ConfigError(f"{name}: {exc}") from None
+        elif dataclasses.is_dataclass(hint):
+            _build(hint, doc[name], f"{name}.")
+
+
 def _merge(doc: dict, overrides: dict) -> dict:
     out = dict(doc)
     for k, v in overrides.items():
@@ -378,15 +404,21 @@ def load_config(path: Path | None, overrides: dict | None = None) -> KioskConfig
         if len(data) > MAX_CONFIG_BYTES:
             raise ConfigError(f"{path}: {len(data)} bytes is too large for a kiosk config")
         try:
-            doc = yaml.safe_load(data.decode("utf-8"))
+            doc = yamlload.safe_load(data.decode("utf-8"))
         except UnicodeDecodeError:
             raise ConfigError(f"{path}: not UTF-8 text") from None
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+            raise ConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
         if doc is None:
             doc = {}
         if not isinstance(doc, dict):
             raise ConfigError(f"{path}: the config must be a mapping of sections; got {type(doc).__name__}")
+        # Every section an option overrides must be valid in the file too: an option that hides a bad value
+        # today leaves the kiosk unable to start the day it runs without that option.
+        try:
+            _check_sections(doc, [k for k in (overrides or {}) if isinstance(doc.get(k), dict)])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
     doc = _merge(doc, overrides or {})
     try:
         return config_from_mapping(doc, base_dir=path.parent if path is not None else None)

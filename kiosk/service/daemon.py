@@ -122,7 +122,10 @@ class KioskDaemon:
         self.health = HealthMonitor()
         self.server = KioskServer(config.server.host, config.server.port,
                                   allow_non_loopback=config.server.allow_non_loopback,
-                                  timeout_s=config.server.request_timeout_s)
+                                  timeout_s=config.server.request_timeout_s,
+                                  header_timeout_s=config.server.header_timeout_s,
+                                  max_connections=config.server.max_connections,
+                                  server_names=config.server.names)
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
                                margin_px=inf.margin_px, cached=self.cache.has,

@@ -18,9 +18,11 @@ from typing import Any
 
 import yaml
 
+from kiosk.contract import yamlload
 from kiosk.service.config import KioskConfig, config_from_mapping
 from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
+from kiosk.ops.health import storage_check
 from kiosk.ops.logsetup import configure_logging, say_line
 from kiosk.ops.signals import on_signals
 from kiosk.inference.scene import Panel, Scene, SketchInput
@@ -126,11 +128,11 @@ def _kiosk_doc(config: StudyConfig) -> tuple[dict, Path]:
         return dict(config.kiosk), config.base_dir
     path = Path(config.kiosk)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yamlload.safe_load(path.read_text())
     except OSError as exc:
         raise StudyConfigError(f"cannot read the study's kiosk config {path}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise StudyConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
     if not isinstance(doc, dict):
         raise StudyConfigError(f"{path}: the kiosk config must be a mapping")
     ctl = doc.get("control")
@@ -180,6 +182,7 @@ class StudyRuntime:
             self.daemon.server.route("GET", "/api/study/", self.service.http_get)
             self.daemon.server.route("POST", "/api/study/", self.service.http_post)
             self.daemon.add_control_handler("study.", self.service.control)
+            self.daemon.add_health_check("study_log", storage_check(config.log, self.service.log_error))
             self.service.start_timer()
         except BaseException:
             self.close()
