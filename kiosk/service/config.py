@@ -147,7 +147,7 @@ class PageTexts:
     feel: str = "Feel"
     undo: str = "Undo"
     clear: str = "Clear"
-    outline: str = "Use its outline"
+    outline: str = "Start from its outline"
     catalogue: str = "Fabrics"
     feeling: str = "You are feeling"
     hint_draw_empty: str = "Draw the outline of a garment with one finger. Close the outline to see it made."

@@ -141,6 +141,7 @@ function setMode(mode) {
   for (const b of $("modes").children) b.setAttribute("aria-checked", String(b.dataset.mode === mode));
   fingerEl.hidden = true;
   state.feelId = null;
+  toastEl.hidden = true;
   updateHint();
 }
 
@@ -359,6 +360,15 @@ stage.addEventListener("pointerup", (ev) => {
   redraw();
   render("final");
 });
+// The browser took the pointer away (it lost capture without an "up"): treat it like a cancel.
+stage.addEventListener("lostpointercapture", (ev) => {
+  if (ev.pointerId === state.feelId) {
+    state.feelId = null;
+    fingerEl.hidden = true;
+  } else if (ev.pointerId === state.currentId) {
+    cancelStroke();
+  }
+});
 stage.addEventListener("pointercancel", (ev) => {
   if (ev.pointerId === state.feelId) {
     state.feelId = null;
@@ -495,7 +505,7 @@ function idleReset() {
 }
 
 function checkIdle() {
-  if (!config || state.attract || state.current) return;
+  if (!config || state.attract || state.current || state.feelId !== null) return;  // a resting finger is a shopper
   if (performance.now() - state.lastActivity > config.idle_timeout_s * 1000) idleReset();
 }
 
