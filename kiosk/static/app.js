@@ -33,6 +33,7 @@ const state = {
   strokes: [],          // finished strokes: arrays of [x, y] in screen px
   current: null,        // the stroke being drawn
   currentId: null,      // its pointer
+  currentType: null,    // and the pointer's kind (touch, pen, mouse)
   moved: false,         // the stroke went farther than a tap
   base: false,          // the garment's own sketch under the strokes
   visual: null,         // {bitmap, rect, frame, preview, alpha}
@@ -43,7 +44,7 @@ const state = {
   requestNotice: null, serverNotices: [],
   mode: "draw",         // what a touch on the canvas does: "draw" adds ink, "feel" only feels
   penSeen: false,
-  pointers: new Set(),  // pointers down anywhere on the page
+  pointers: new Map(),  // pointers down anywhere on the page: id -> pointerType
   blocked: false,       // a second touch cancelled the stroke: nothing draws until every finger is up
   feelId: null,         // the pointer feeling the garment
   garmentShown: false,  // the last full answer showed a garment
@@ -282,17 +283,15 @@ function feel(ev) {
 }
 
 // Every pointer anywhere: activity for the idle timer, and a second touch while drawing cancels the stroke.
+// A pen's stroke goes on when a palm rests beside it (the palm only feels); a finger's stroke does not.
 document.addEventListener("pointerdown", (ev) => {
   state.lastActivity = performance.now();
   // A primary pointer means no other pointer of its kind is down: forget any whose "up" never came.
-  if (ev.isPrimary) {
-    state.pointers.clear();
-    state.blocked = false;
-  }
-  state.pointers.add(ev.pointerId);
-  if (state.pointers.size > 1) {
+  if (ev.isPrimary) for (const [id, type] of state.pointers) if (type === ev.pointerType) state.pointers.delete(id);
+  state.pointers.set(ev.pointerId, ev.pointerType);
+  if (state.current && ev.pointerId !== state.currentId && !(state.currentType === "pen" && ev.pointerType !== "pen")) {
     state.blocked = true;
-    if (state.current && ev.pointerId !== state.currentId) cancelStroke();
+    cancelStroke();
   }
 }, true);
 document.addEventListener("pointermove", () => { state.lastActivity = performance.now(); }, true);
@@ -307,7 +306,7 @@ document.addEventListener("contextmenu", (ev) => ev.preventDefault());
 
 stage.addEventListener("pointerdown", (ev) => {
   if (!config || state.attract || (ev.button !== undefined && ev.button > 0)) return;
-  if (!ev.isPrimary || state.blocked) return;
+  if (!ev.isPrimary || state.blocked || state.current) return;
   if (ev.pointerType === "pen" && config.pen_draws && !state.penSeen) {
     state.penSeen = true;  // this panel has a pen: it draws, and a finger feels
     setMode("feel");
@@ -323,6 +322,7 @@ stage.addEventListener("pointerdown", (ev) => {
   }
   state.current = [toScreen(ev)];
   state.currentId = ev.pointerId;
+  state.currentType = ev.pointerType;
   state.moved = false;
 });
 stage.addEventListener("pointermove", (ev) => {
@@ -497,6 +497,7 @@ function idleReset() {
   state.base = false;
   state.visual = state.settled = null;
   state.garmentShown = false;
+  state.applied = ++state.seq;  // answers still on their way belong to the last shopper
   setMode(state.penSeen && config.pen_draws ? "feel" : "draw");
   if (state.defaultGarment) markGarment(state.defaultGarment);
   showAttract();
@@ -559,8 +560,11 @@ const attractArt = (() => {
     return { name: b.display_name, w, h, ink, order, fill, layer, shown: new ImageData(w, h) };
   }
 
+  let last = 0;
   function frame(now) {
     raf = requestAnimationFrame(frame);
+    if (now - last < 1000 / 30) return;  // 30 frames/s is smooth enough for a line being drawn
+    last = now;
     const r = canvas.getBoundingClientRect();
     const W = Math.round(r.width * dpr()), H = Math.round(r.height * dpr());
     if (canvas.width !== W || canvas.height !== H) { canvas.width = W; canvas.height = H; }
@@ -578,13 +582,18 @@ const attractArt = (() => {
       c.drawImage(it.fill, x, y, it.w * k, it.h * k);
       c.globalAlpha = p > 0.92 ? Math.max(0, (1 - p) / 0.08) : 1;
     }
-    const drawn = Math.min(1, p / 0.45);
-    const src = it.ink.data, dst = it.shown.data;
-    for (let i = 0; i < it.w * it.h; i++) {
-      dst[i * 4] = dst[i * 4 + 1] = dst[i * 4 + 2] = 25;
-      dst[i * 4 + 3] = it.order[i] <= drawn ? src[i * 4 + 3] * (1 - 0.6 * fillIn) : 0;
+    // The ink layer changes in 100 steps of the sweep and 20 of the fade: a kiosk's idle CPU stays idle.
+    const drawn = Math.round(Math.min(1, p / 0.45) * 100) / 100, fade = Math.round(fillIn * 20) / 20;
+    if (it.drawn !== drawn || it.fade !== fade) {
+      it.drawn = drawn;
+      it.fade = fade;
+      const src = it.ink.data, dst = it.shown.data;
+      for (let i = 0; i < it.w * it.h; i++) {
+        dst[i * 4] = dst[i * 4 + 1] = dst[i * 4 + 2] = 25;
+        dst[i * 4 + 3] = it.order[i] <= drawn ? src[i * 4 + 3] * (1 - 0.6 * fade) : 0;
+      }
+      it.layer.getContext("2d").putImageData(it.shown, 0, 0);
     }
-    it.layer.getContext("2d").putImageData(it.shown, 0, 0);
     c.drawImage(it.layer, x, y, it.w * k, it.h * k);
     c.globalAlpha = 1;
   }

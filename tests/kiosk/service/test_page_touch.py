@@ -266,15 +266,15 @@ def test_a_pen_draws_while_a_finger_feels(touch, daemon):
 
 def test_idle_returns_to_the_attract_screen_with_the_drawing_and_friction_cleared(browser, tmp_path):
     bundle, trusted = make_bundle(tmp_path)
-    d = start_daemon([bundle], trusted, page={"idle_timeout_s": 1.5, "attract_garment_s": 2.0})
+    d = start_daemon([bundle], trusted, page={"idle_timeout_s": 3.0, "attract_garment_s": 2.0})
     errors: list[str] = []
     try:
         page, fingers = open_page(browser, d.server.url, errors)
-        assert d.usage.sessions.value() == 1
+        assert wait_for(lambda: d.usage.sessions.value() == 1, 10.0)
         shown = draw_garment(page, fingers)
         assert shown["status"] == "ok"
         assert wait_for(lambda: d.device.emulator.active_frame.any(), 10.0)
-        page.wait_for_function("window.vtkiosk.state.attract", timeout=15000)
+        page.wait_for_function("window.vtkiosk.state.attract", timeout=30000)
         assert page.is_visible("#attract")
         assert js(page, "window.vtkiosk.state.strokes") == [] and js(page, "window.vtkiosk.state.mode") == "draw"
         page.wait_for_function("window.vtkiosk.shown.status === 'empty'", timeout=15000)
@@ -282,14 +282,14 @@ def test_idle_returns_to_the_attract_screen_with_the_drawing_and_friction_cleare
         assert canvas_digest(page) == js(page, "(() => { const c = document.createElement('canvas');"
                                                " c.width = 1280; c.height = 800; return c.toDataURL(); })()")
         assert wait_for(lambda: not d.device.emulator.active_frame.any(), 10.0)  # nothing left to feel
-        assert wait_for(lambda: d.usage.idle_resets.value() == 1, 5.0)
+        assert wait_for(lambda: d.usage.idle_resets.value() == 1, 10.0)
         # The attract screen draws the catalogue's reference sketch (pixels appear on its canvas).
         page.wait_for_function("(() => { const c = document.getElementById('attract-art');"
                                " return c.width > 0 && c.getContext('2d').getImageData(0, 0, c.width, c.height)"
-                               ".data.some((v, i) => i % 4 === 3 && v > 0); })()", timeout=10000)
+                               ".data.some((v, i) => i % 4 === 3 && v > 0); })()", polling=500, timeout=20000)
         fingers.tap(640, 400)
         page.wait_for_function("!window.vtkiosk.state.attract")
-        assert wait_for(lambda: d.usage.sessions.value() == 2, 5.0)
+        assert wait_for(lambda: d.usage.sessions.value() == 2, 10.0)
         page.context.close()
     finally:
         d.stop()
