@@ -251,11 +251,15 @@ def test_a_pen_draws_while_a_finger_feels(touch, daemon):
     n = js(page, "window.vtkiosk.stats.finals.length")
     path = _resample(OUTLINE, 40)
     pen("mousePressed", *path[0])
-    for p in path[1:]:
+    for i, p in enumerate(path[1:]):
+        if i == 10:
+            fingers.send("touchStart", {7: (1000, 700)})  # the drawing hand's palm comes to rest
         pen("mouseMoved", *p)
         page.wait_for_timeout(16)
     pen("mouseReleased", *path[-1])
+    fingers.send("touchEnd", {})
     assert wait_settled(page, n)["status"] == "ok"
+    assert js(page, "window.vtkiosk.stats.cancelled") == 0 and js(page, "window.vtkiosk.stats.touches.feel") == 0
     assert js(page, "window.vtkiosk.state.penSeen") and js(page, "window.vtkiosk.state.mode") == "feel"
     assert page.inner_text("#hint") == js(page, "window.vtkiosk.config().texts.hint_pen")
     before = counters(daemon)
