@@ -194,6 +194,64 @@ class DebugConfig:
     fault_injection: bool = False
 
 
+MAX_TEXT_CHARS = 200  # a line a shopper reads at arm's length; longer text breaks the page's layout
+
+
+@dataclass(frozen=True)
+class PageTexts:
+    """Every sentence the shopper's page shows, so a store can reword or translate it without touching code.
+    The page picks the hint that matches its state (Draw or Feel mode, with or without a garment)."""
+
+    title: str = "Draw it. See it. Feel it."
+    invite: str = "Touch the screen to start"
+    draw: str = "Draw"
+    feel: str = "Feel"
+    undo: str = "Undo"
+    clear: str = "Clear"
+    outline: str = "Start from its outline"
+    catalogue: str = "Fabrics"
+    feeling: str = "You are feeling"
+    hint_draw_empty: str = "Draw the outline of a garment with one finger. Close the outline to see it made."
+    hint_draw: str = "Keep drawing to change your garment, or tap Feel to touch its fabric."
+    hint_feel: str = "Slide your finger over the garment to feel the fabric. Tap Draw to change it."
+    hint_feel_empty: str = "Nothing to feel yet: tap Draw and draw a garment, or pick a fabric."
+    hint_pen: str = "Draw with the pen. Slide a finger over the garment to feel the fabric."
+    ready: str = "Your garment is ready: slide a finger over it to feel the fabric."
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            _check(len(v) <= MAX_TEXT_CHARS and "\n" not in v,
+                   f"page.texts.{f.name} must be one line of at most {MAX_TEXT_CHARS} characters")
+
+
+@dataclass(frozen=True)
+class PageConfig:
+    """The shopper's page: the store loop's timings and its texts.
+
+    idle_timeout_s: no touch for this long clears the drawing and the friction frame and shows the attract screen.
+    attract_garment_s: how long the attract screen spends drawing and filling in each catalogue garment.
+    auto_feel: switch to Feel mode when a drawing first closes into a garment. pen_draws: once a pen has touched
+    the screen, the pen always draws and a finger always feels (the toggle stays as the way back).
+    tap_max_px: a touch that never moves farther than this (CSS pixels) is a tap and leaves no ink.
+    """
+
+    idle_timeout_s: float = 90.0
+    attract_garment_s: float = 6.0
+    auto_feel: bool = True
+    pen_draws: bool = True
+    tap_max_px: float = 6.0
+    texts: PageTexts = field(default_factory=PageTexts)
+
+    def __post_init__(self) -> None:
+        _check(0.5 <= self.idle_timeout_s <= 3600.0, "page.idle_timeout_s must be from 0.5 to 3600 seconds")
+        _check(2.0 <= self.attract_garment_s <= 120.0, "page.attract_garment_s must be from 2 to 120 seconds")
+        _check(0.0 <= self.tap_max_px <= 100.0, "page.tap_max_px must be from 0 to 100 (CSS pixels)")
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
 @dataclass(frozen=True)
 class FleetConfig:
     """Fleet updates (`vtkiosk fleet sync`, docs/fleet.md); no url: this kiosk takes no part in a fleet.
@@ -247,6 +305,7 @@ class KioskConfig:
     control: ControlConfig = field(default_factory=ControlConfig)
     debug: DebugConfig = field(default_factory=DebugConfig)
     fleet: FleetConfig = field(default_factory=FleetConfig)
+    page: PageConfig = field(default_factory=PageConfig)
     state_dir: Path | None = None
     log_level: str = "INFO"
 

@@ -43,6 +43,7 @@ from kiosk.ops.notify import Notifier, Watchdog, watchdog_interval_s
 from kiosk.inference.render import FrictionSource
 from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput
 from kiosk.service.server import KioskServer, Request, Response
+from kiosk.service.usage import UsageMetrics, parse_usage_event
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
@@ -174,6 +175,7 @@ class KioskDaemon:
         self.m_requests = r.histogram("vtkiosk_http_request_seconds", "HTTP request latency.", labels=("route",))
         self.m_nonfinite = r.counter("vtkiosk_nonfinite_values_total",
                                      "Non-finite tactile values replaced by 0 in friction maps.")
+        self.usage = UsageMetrics(r)
         self.m_device_up.set_function(lambda: 1.0 if self.device.up else 0.0)
         self.m_degraded.set_function(lambda: 1.0 if self._notices else 0.0)
         if self.config.fleet.enabled:
@@ -700,6 +702,8 @@ class KioskDaemon:
         s.route("GET", "/api/ping", lambda req: Response.json({"ok": True}))
         s.route("GET", "/api/bundles", self._api_bundles)
         s.route("POST", "/api/render", self._api_render)
+        s.route("GET", "/api/page", lambda req: Response.json(self.config.page.to_json()))
+        s.route("POST", "/api/usage", self._api_usage)
         s.route("GET", "/api/plan", lambda req: Response.json({"plan": self._last_plan}))
         s.route("GET", "/api/status", lambda req: Response.json(self.status()))
         s.route("GET", "/api/commit", self._api_commit)
@@ -749,6 +753,10 @@ class KioskDaemon:
         except BusyError as exc:
             return Response.error(503, str(exc))
         return frame_response(result)
+
+    def _api_usage(self, req: Request) -> Response:
+        self.usage.record(parse_usage_event(req.json()))
+        return Response(204)
 
     def _api_commit(self, req: Request) -> Response:
         try:
