@@ -85,3 +85,17 @@ class FrictionSource:
             self.ms = 1e3 * (time.perf_counter() - t0)
             self._made = True
             return self._texture
+
+
+def compose(textures: list[Texture], size: tuple[int, int]) -> np.ndarray:
+    """The panel frame the device should hold: textures pasted at their screen positions, later ones on top,
+    clipped to the device panel `size` = (width, height). What the haptics bench measures the felt period on."""
+    w, h = size
+    frame = np.zeros((h, w), np.uint8)
+    for t in textures:
+        vis = intersect(t.rect, (0, 0, w, h))
+        if vis is None:
+            continue
+        x, y, vw, vh = vis
+        frame[y:y + vh, x:x + vw] = t.pixels[y - t.y:y - t.y + vh, x - t.x:x - t.x + vw]
+    return frame
