@@ -30,7 +30,8 @@ from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
 MAX_CONFIG_BYTES = 1 << 20
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
-_NAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]{0,62}\.?)*$")
+_LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+_NAME_RE = re.compile(rf"\A(?=.{{1,253}}\Z){_LABEL}(?:\.{_LABEL})*\.?\Z")
 SIZE_MULTIPLE = 256  # exported graphs take H and W in multiples of 256 (eight stride-2 levels)
 
 

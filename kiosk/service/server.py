@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 MAX_BODY_BYTES = 8 << 20
 MAX_INT_DIGITS = 30          # a JSON integer longer than this is no count, size or coordinate the kiosk takes
-_HOST_RE = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+)(?::([0-9]{1,5}))?$")
+_HOST_RE = re.compile(r"\A(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+)(?::([0-9]{1,5}))?\Z")
 
 
 @dataclass

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from kiosk.contract.errors import InputError
 from kiosk.service.server import KioskServer, Request, Response, split_host
 
 
@@ -159,3 +160,30 @@ def test_slow_clients_are_dropped_and_connections_capped(tmp_path):
         for sock in slow:
             sock.close()
         s.stop()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.one_of(st.binary(max_size=200), st.integers(1, 6000).map(lambda n: b"[" + b"9" * n + b"]"),
+                 st.integers(1, 400).map(lambda n: b"1e" + str(n).encode()),
+                 st.recursive(st.integers() | st.floats(allow_nan=False, allow_infinity=False) | st.text(max_size=5),
+                              lambda kids: st.lists(kids, max_size=3), max_leaves=10)
+                 .map(lambda v: json.dumps(v).encode())))
+def test_any_body_is_a_value_or_a_one_line_input_error(body):
+    req = Request("POST", "/api/x", {}, {}, body, "127.0.0.1")
+    try:
+        req.json()
+    except InputError as exc:
+        assert "\n" not in str(exc)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.text(max_size=300))
+def test_server_names_are_host_names_or_a_config_error(name):
+    from kiosk.service.config import ConfigError, config_from_mapping
+
+    try:
+        cfg = config_from_mapping({"server": {"names": [name]}, "bundles": ["g.vtb"]})
+    except ConfigError as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert split_host(f"{cfg.server.names[0]}:80") is not None
