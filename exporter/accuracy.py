@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import onnxruntime as ort
 
+from kiosk.contract.graph import feeds
 from kiosk.contract.haptics import friction_map
 from kiosk.contract.sketch import NetworkInput
 
@@ -28,7 +29,7 @@ def compare_sessions(ref: ort.InferenceSession, test: ort.InferenceSession, outp
 
 def reference_outputs(ref, outputs: list[str], inputs: Sequence[NetworkInput]) -> list[dict[str, np.ndarray]]:
     """The reference's outputs for each input, computed once (the benchmark compares many graphs against them)."""
-    return [dict(zip(outputs, ref.run(outputs, {"sketch": x.sketch, "mask": x.mask}))) for x in inputs]
+    return [dict(zip(outputs, ref.run(outputs, feeds(x.sketch, x.mask)))) for x in inputs]
 
 
 def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: list[str],
@@ -37,7 +38,7 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
     """Like `compare_sessions` with the reference outputs given; `test` is anything with ORT's `run(names, feed)`."""
     vis, tac, fric, fric_max = [], [], [], 0.0
     for a, x in zip(reference, inputs):
-        b = dict(zip(outputs, test.run(outputs, {"sketch": x.sketch, "mask": x.mask})))
+        b = dict(zip(outputs, test.run(outputs, feeds(x.sketch, x.mask))))
         if "visual" in a:
             vis.append(psnr(a["visual"], b["visual"]))
         if "tactile" in a:

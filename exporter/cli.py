@@ -48,10 +48,14 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--max-friction-mae", type=float, default=1.0,
                    help="refuse an int8 graph whose friction-map error exceeds this many levels (default 1)")
     p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
-    p.add_argument("--model-version", default=None)
+    p.add_argument("--model-version", default=None,
+                   help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
+    p.add_argument("--runs-root", type=Path, default=None,
+                   help="record the run in the manifest relative to this folder (default: the working directory; "
+                        "a run outside it is recorded as a hash of its path)")
     return p
 
 
@@ -64,7 +68,7 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
                        force=args.force, model_version=args.model_version, display_name=args.display_name,
-                       normalization=args.normalization)
+                       normalization=args.normalization, runs_root=args.runs_root)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
     log_path = args.log or Path(str(args.out) + ".log")

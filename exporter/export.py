@@ -4,6 +4,7 @@ its measured error against fp32, the garment's friction calibration and referenc
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import platform
 import socket
@@ -22,16 +23,13 @@ from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.bundle.archive import sha256_file
-from kiosk.contract.errors import KioskError
+from exporter.errors import ExportError
+from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
 from kiosk.contract.garment import garment_id
+from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, is_grid
 from kiosk.contract.haptics import NORMALIZATIONS
-from kiosk.bundle.manifest import GRAPH_KINDS, GRAPH_OUTPUTS, SCHEMA_VERSION, GraphSpec, Manifest
 
 PARITY_BOUND = 1e-4
-
-
-class ExportError(KioskError):
-    """An export that must not produce a bundle; the message says why and what to change."""
 
 
 @dataclass
@@ -51,6 +49,7 @@ class ExportConfig:
     model_version: str | None = None
     display_name: str | None = None
     seed: int = 0
+    runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
 
 
 @dataclass
@@ -59,6 +58,21 @@ class ExportReport:
     parity: dict[str, float]
     errors: dict[str, dict[str, float]]
     out: Path
+
+
+def source_run_name(run_dir: Path, runs_root: Path | None = None) -> str:
+    """How the manifest names the training run: its path relative to `runs_root` (default: the working directory),
+    or, for a run outside it, `sha256:` and the first 16 hex digits of the SHA-256 of its resolved path. Never an
+    absolute path: a bundle travels to kiosks and must not carry the build machine's layout."""
+    run = Path(run_dir).resolve()
+    root = Path(runs_root if runs_root is not None else Path.cwd()).resolve()
+    try:
+        rel = run.relative_to(root).as_posix()
+    except ValueError:
+        rel = ""
+    if rel and rel != ".":
+        return rel
+    return "sha256:" + hashlib.sha256(str(run).encode()).hexdigest()[:16]
 
 
 def rewrites_conv_transpose(precision: str) -> bool:
@@ -139,8 +153,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     if cfg.precision not in ("int8", "fp16", "fp32"):
         raise ExportError(f"precision must be int8, fp16 or fp32; got {cfg.precision!r}")
     for w, h in cfg.sizes:
-        if w % 256 or h % 256 or w < 256 or h < 256:
-            raise ExportError(f"sizes must be multiples of 256 (8 stride-2 levels); got {w}x{h}")
+        if not (is_grid(w) and is_grid(h)):
+            raise ExportError(f"sizes must be multiples of {GRID_MULTIPLE} (the generator halves the grid eight "
+                              f"times); got {w}x{h}")
     generator, info = load_generator(run_dir, cfg.which)
     if info.get("generator_class", "TwoBranchUNet") != "TwoBranchUNet":
         raise ExportError(f"run {run_dir} ({info.get('method')}) uses {info.get('generator_class')}, which has no "
@@ -203,7 +218,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             method=str(info.get("method") or run_cfg.method),
             created_at=now.isoformat().replace("+00:00", "Z"),
             exporter_version=exporter.__version__,
-            source_run=str(run_dir.resolve()),
+            source_run=source_run_name(run_dir, cfg.runs_root),
             checkpoint_sha256=sha256_file(ck_path),
             graphs=graphs,
             friction_scale=float(scale),

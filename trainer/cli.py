@@ -59,6 +59,7 @@ def pick_garments(args) -> list[Path]:
 
 def main(argv: list[str], prog: str = "vtkiosk train") -> int:
     args = build_parser(prog).parse_args(argv)
+    args.argv = list(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     from trainer.config import load_config
     overrides = list(args.overrides) + ([f"train.steps={args.steps}"] if args.steps else [])
@@ -66,29 +67,41 @@ def main(argv: list[str], prog: str = "vtkiosk train") -> int:
     from trainer.methods import get_method
     get_method(cfg0.method)  # unknown names fail before any data is read
     garments = pick_garments(args)
+    from kiosk.ops.signals import on_signals
     from trainer.distributed import cleanup, init_from_env
-    from trainer.loop import Trainer
-    from trainer.data.touchclothing import parse_folder_name
     dist = init_from_env()
-    try:
-        for g in garments:
-            cfg = load_config(args.preset, overrides=overrides, method=args.method)
-            out = args.out if len(garments) == 1 and not args.all else \
-                args.out / parse_folder_name(g.name)[0] / cfg.method
-            if len(garments) == 1 and args.index is not None:
-                out = args.out / parse_folder_name(g.name)[0] / cfg.method
-            trainer = Trainer(cfg, g, out, resume=args.resume, dist=dist)
-            if (dist is None or dist.main) and not args.resume:
-                # how this run was made, as typed (the demo catalogue records it beside the packed model)
-                (out / "command.txt").write_text(shlex.join(["vtkiosk", "train", *argv]) + "\n")
-            summary = trainer.run()
-            if dist is None or dist.main:
-                val = summary.get("val") or {}
-                print(f"{g.name} [{cfg.method}] step {summary['step']}: "
-                      + ", ".join(f"{k}={v:.4g}" for k, v in val.items() if k != "step")
-                      + f" ({summary['seconds_per_step']} s/step) -> {out}")
-    finally:
-        cleanup()
+    with on_signals() as signals:
+        try:
+            return _train_all(args, garments, overrides, dist, signals)
+        finally:
+            cleanup()
+
+
+def _train_all(args, garments, overrides, dist, signals) -> int:
+    """Train each garment in turn; a stop signal ends the current run at its next step, with a checkpoint."""
+    from trainer.config import load_config
+    from trainer.data.touchclothing import parse_folder_name
+    from trainer.loop import Trainer
+    for g in garments:
+        cfg = load_config(args.preset, overrides=overrides, method=args.method)
+        out = args.out if len(garments) == 1 and not args.all else \
+            args.out / parse_folder_name(g.name)[0] / cfg.method
+        if len(garments) == 1 and args.index is not None:
+            out = args.out / parse_folder_name(g.name)[0] / cfg.method
+        trainer = Trainer(cfg, g, out, resume=args.resume, dist=dist)
+        if (dist is None or dist.main) and not args.resume:
+            # how this run was made, as typed (the demo catalogue records it beside the packed model)
+            (out / "command.txt").write_text(shlex.join(["vtkiosk", "train", *args.argv]) + "\n")
+        summary = trainer.run(should_stop=lambda: signals.stop)
+        if dist is None or dist.main:
+            val = summary.get("val") or {}
+            print(f"{g.name} [{cfg.method}] step {summary['step']}: "
+                  + ", ".join(f"{k}={v:.4g}" for k, v in val.items() if k != "step")
+                  + f" ({summary['seconds_per_step']} s/step) -> {out}")
+        if summary["stopped_early"]:
+            print(f"stopped by signal at step {summary['step']}; continue with --resume --out {out}",
+                  file=sys.stderr)
+            return 128 + (signals.stop_signal or 15)  # unfinished: a scheduler may requeue the job
     return 0
 
 

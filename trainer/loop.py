@@ -6,9 +6,11 @@ one (tests/trainer/test_loop.py checks this bit for bit under `torch.use_determi
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -41,12 +43,12 @@ class Trainer:
 
     def __init__(self, cfg: RunConfig, garment_dir: Path, out_dir: Path, *, resume: bool = False,
                  dist: Dist | None = None):
+        cfg = dataclasses.replace(cfg, garment=str(Path(garment_dir).resolve()))
         self.cfg = cfg
         self.out = Path(out_dir)
         self.dist = dist
         self.rank = dist.rank if dist else 0
         self.main = self.rank == 0
-        cfg.garment = str(Path(garment_dir).resolve())
         set_determinism(cfg)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
@@ -129,7 +131,9 @@ class Trainer:
         save_png(path, grid([tiles]))
 
     # --- the loop -------------------------------------------------------------------------------------------
-    def run(self, until: int | None = None) -> dict:
+    def run(self, until: int | None = None, should_stop: Callable[[], bool] | None = None) -> dict:
+        """Train to `until` (default: the schedule's end). `should_stop()` is asked after every step (a signal
+        flag); when it says yes, the run saves its latest checkpoint at once so `--resume` continues from there."""
         t = self.cfg.train
         end = min(until if until is not None else t.steps, t.steps)
         bar = None
@@ -138,7 +142,15 @@ class Trainer:
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
+        self.stopped = False
         while self.step < end:
+            if should_stop is not None and self._agree_to_stop(should_stop()):
+                self.stopped = True
+                self.train_seconds += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                self.save("latest")
+                log.info("stopped at step %d on request; --resume continues from there", self.step)
+                break
             batch = self.data.batch(self.step, self.rank)
             o = self.cfg.optim
             factor = lr_factor(o.lr_policy, self.step, t.steps, o.decay_from)
@@ -174,10 +186,17 @@ class Trainer:
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),
-                   "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best}
+                   "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best,
+                   "stopped_early": self.stopped}
         if self.main:
             (self.out / "metrics.json").write_text(json.dumps({"train": summary}, indent=2))
         return summary
+
+    def _agree_to_stop(self, mine: bool) -> bool:
+        """Under torchrun every rank must stop at the same step, or the others wait forever in a collective."""
+        if self.dist is None:
+            return mine
+        return average_scalar(float(mine), self.dist.world) > 0
 
     def _validate_and_keep_best(self) -> None:
         if not self.main:

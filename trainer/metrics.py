@@ -1,4 +1,4 @@
-"""Evaluation metrics (the published definitions, reference-notes.md), on numpy arrays or tensors in [-1, 1].
+"""Evaluation metrics (the definitions of the authors' published code), on numpy arrays or tensors in [-1, 1].
 
 Visual: PSNR, SSIM, L1 inside the object mask (the background is not the model's work); LPIPS when VGG weights are
 configured. Tactile (paired 32x32 patches, contact pixels): MSE and the angular error in degrees between

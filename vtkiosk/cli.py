@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bundle": ("kiosk.bundle.cli", "inspect, verify, install, activate and roll back bundles"),
     "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e, haptics)"),
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
+    "fleet": ("kiosk.fleet.cli", "publish bundles to a TUF update repository; sync a kiosk from it"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
     "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),
     "demo": ("vtkiosk.demo", "the main job: the kiosk on the trained demo catalogue with the emulated device"),

@@ -7,11 +7,17 @@ The store's location, the trusted keys and the daemon's control socket come from
 store atomically, then ask the running daemon to reload; if the daemon refuses the new version (it failed to load
 or to answer its probe within the latency budget), the store is switched back and the command fails with the
 daemon's reason. With no daemon running, the switch stands and the daemon serves it when it starts.
+
+`install` and `activate` refuse a version older than the garment's newest installed one (see
+`kiosk.bundle.version` for the order) unless `--allow-downgrade`; `rollback` is the explicit way back. Refusals and
+allowed downgrades are logged to the systemd journal where the machine has one; the terminal gets one line.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import logging
 import shutil
 import sys
 import tempfile
@@ -23,6 +29,7 @@ from kiosk.contract.garment import garment_id
 DEFAULT_CONFIG = Path("/etc/vtkiosk/kiosk.yaml")
 DEFAULT_STORE = Path("/var/lib/vtkiosk/bundles")
 DEFAULT_CONTROL = Path("/run/vtkiosk/control.sock")
+JOURNAL_SOCKET = Path("/run/systemd/journal/socket")
 
 
 def _panel(args) -> tuple[float, str]:
@@ -179,7 +186,7 @@ def _switch(settings: _Settings, args, action: str) -> int:
     store = settings.store(args.threads)
     before = {g: store.links(g) for g in store.active()}
     if action == "activate":
-        now = store.activate(args.garment, args.version)
+        now = store.activate(args.garment, args.version, allow_downgrade=args.allow_downgrade)
     else:
         now = store.rollback(args.garment)
     old = before.get(now.garment)
@@ -203,7 +210,7 @@ def _store_action(args) -> int:
     store = settings.store(args.threads)
     if args.action == "install":
         for f in args.files:
-            s = store.install(f)
+            s = store.install(f, allow_downgrade=args.allow_downgrade)
             print(f"installed {s.garment} {s.version} (signed by {s.key_id or 'nobody: UNSIGNED'}, "
                   f"{_precision_text(s.precisions)}) into {s.path}")
             if args.activate:
@@ -251,20 +258,38 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = store_parser("install", "verify bundles (signature, hashes, ORT probe) and add them to the store")
     p.add_argument("files", type=Path, nargs="+")
     p.add_argument("--activate", action="store_true", help="activate each one after installing it")
+    p.add_argument("--allow-downgrade", action="store_true",
+                   help="install (and activate) a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="with --activate: do not tell the daemon")
     p = store_parser("list", "installed versions: active, previous, signing key, precision")
     p.add_argument("--json", action="store_true")
     p = store_parser("activate", "make a version the active one and tell the daemon")
     p.add_argument("garment")
     p.add_argument("version")
+    p.add_argument("--allow-downgrade", action="store_true",
+                   help="activate a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
     p = store_parser("rollback", "go back to the previous version and tell the daemon")
     p.add_argument("garment")
+    p.set_defaults(allow_downgrade=True)   # rolling back is the operator's explicit step back
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
     p = store_parser("remove", "delete an installed version (not the active one)")
     p.add_argument("garment")
     p.add_argument("version")
     return parser
+
+
+def _log_store_decisions() -> None:
+    """The store's decisions (a refused downgrade above all) go to the journal where the machine has one, so they
+    are on record however the command was run; the terminal gets the one-line result only."""
+    if logging.getLogger().handlers:
+        return   # logging is set up already (a daemon or a test runs us)
+    if JOURNAL_SOCKET.exists() and importlib.util.find_spec("systemd") is not None:
+        from kiosk.ops.logsetup import configure_logging
+
+        configure_logging(level="INFO", journal=True)
+    else:
+        logging.getLogger("kiosk.bundle").addHandler(logging.NullHandler())
 
 
 def main(argv: list[str], prog: str = "vtkiosk bundle") -> int:
@@ -273,4 +298,5 @@ def main(argv: list[str], prog: str = "vtkiosk bundle") -> int:
         args.garment = garment_id(args.garment)   # DenimShorts and the dataset folder name work too
     if args.action in ("inspect", "verify"):
         return _inspect_or_verify(args)
+    _log_store_decisions()
     return _store_action(args)

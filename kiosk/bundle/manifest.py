@@ -2,7 +2,12 @@
 
 The exporter writes what this module reads (it calls `dump_manifest`), so the two can never drift. Parsing is
 strict because a manifest arrives from outside the kiosk: YAML aliases, tags and any type beyond plain scalars,
-lists and mappings are refused, unknown keys are refused, and every field is type-checked.
+lists and mappings are refused, unknown keys are refused, nesting is bounded, and every field is type-checked.
+
+`model.version` follows the grammar and ordering of `kiosk.bundle.version` (e.g. "2026.11.21-1" < "2026.11.22-1",
+"1.9" < "1.10"): the store refuses to install or activate a version below a garment's newest installed one.
+The exporter writes `model.source_run` without the build machine's paths (a path relative to the runs folder, or
+`sha256:<hex>` of the run's location when it lies outside it); older bundles with an absolute path still load.
 """
 from __future__ import annotations
 
@@ -12,13 +17,14 @@ from typing import Any
 
 import yaml
 
+from kiosk.bundle.version import VersionError, parse_version
 from kiosk.contract.errors import InputError, KioskError
+from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS
 from kiosk.contract.haptics import NORMALIZATIONS, check_constants
 
 SCHEMA_VERSION = 1
 MAX_MANIFEST_BYTES = 1 << 20
-GRAPH_KINDS = ("full", "tactile", "visual")
-GRAPH_OUTPUTS = {"full": ["visual", "tactile"], "tactile": ["tactile"], "visual": ["visual"]}
+MAX_DEPTH = 12   # the schema nests 4 deep (graphs.<kind>.sizes[i]); room to spare, far from Python's recursion limit
 PRECISIONS = ("fp32", "fp16", "int8")
 _ID_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
@@ -74,6 +80,16 @@ class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that refuses aliases/anchors and explicit tags: a manifest is plain data."""
 
     def compose_node(self, parent, index):  # type: ignore[override]
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise BundleError(f"manifest nests deeper than {MAX_DEPTH} levels (line "
+                                  f"{self.peek_event().start_mark.line + 1}); a manifest is shallow plain data")
+            return self._compose_checked(parent, index)
+        finally:
+            self._depth -= 1
+
+    def _compose_checked(self, parent, index):
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()
             raise BundleError(f"manifest uses a YAML alias at line {event.start_mark.line + 1}; aliases are "
@@ -154,6 +170,11 @@ def manifest_from_dict(doc: Any) -> Manifest:
     _only_keys(garment, {"id", "display_name"}, "garment")
     model = _mapping(doc, "model")
     _only_keys(model, {"version", "method", "source_run", "checkpoint_sha256"}, "model")
+    try:
+        parse_version(model.get("version"))
+    except VersionError as exc:
+        raise BundleError(f"manifest: model.{exc}") from None
+    source_run = _str(model, "source_run", where="model.")   # bundles exported before 0.2 carry absolute paths
     graphs_doc = _mapping(doc, "graphs")
     _need(bool(graphs_doc), "graphs must name at least one graph")
     graphs: dict[str, GraphSpec] = {}
@@ -206,7 +227,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         method=_str(model, "method", where="model."),
         created_at=_str(doc, "created_at"),
         exporter_version=_str(doc, "exporter_version"),
-        source_run=_str(model, "source_run", where="model."),
+        source_run=source_run,
         checkpoint_sha256=_str(model, "checkpoint_sha256", _SHA_RE, "model."),
         graphs=graphs,
         friction_scale=_num(haptics, "friction_scale", "haptics.", positive=True),
@@ -232,7 +253,11 @@ def parse_manifest(data: bytes) -> Manifest:
     except UnicodeDecodeError as exc:
         raise BundleError("manifest is not UTF-8 text") from exc
     except yaml.YAMLError as exc:
-        raise BundleError(f"manifest is not valid YAML: {exc}") from exc
+        raise BundleError(f"manifest is not valid YAML: {' '.join(str(exc).split())}") from None
+    except RecursionError:
+        raise BundleError("manifest nests too deeply to be a manifest") from None
+    except ValueError as exc:   # e.g. an integer of thousands of digits
+        raise BundleError(f"manifest holds a value YAML cannot read ({' '.join(str(exc).split())[:120]})") from None
     return manifest_from_dict(doc)
 
 

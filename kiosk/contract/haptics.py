@@ -159,7 +159,7 @@ def height_from_gradients(gx: object, gy: object, pixel_pitch: float = 1.0, *,
     Accuracy (tests/kiosk/contract/test_haptics.py, analytic gradients sampled at pixel centres, 128x96 px):
     sinusoid with a 32 px period: relative RMS error < 1 %; paraboloid: < 0.5 %; a height step given as
     central-difference gradients: plateau difference within 1 % of the step, no overshoot beyond 2 %.
-    Cost: two real FFTs of (2H, 2W); about 1 s at 1536x1536 on this 2-core machine (not on the kiosk's hot path).
+    Cost: two real FFTs of (2H, 2W), O(HW log HW); it is not on the kiosk's hot path (docs/performance.md).
     """
     if not (isinstance(pixel_pitch, (int, float, np.floating, np.integer))
             and np.isfinite(pixel_pitch) and pixel_pitch > 0):

@@ -26,7 +26,8 @@ import onnxruntime as ort
 from kiosk.bundle.archive import MANIFEST, Bundle
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import BundleError
-from kiosk.bundle.probe import OUTPUT_CHANNELS, session_options
+from kiosk.bundle.probe import session_options
+from kiosk.contract.graph import OUTPUT_CHANNELS, feeds
 from kiosk.contract.sketch import NetworkInput
 
 MODALITIES = ("visual", "tactile")
@@ -210,7 +211,7 @@ class LoadedBundle:
         h, w = inputs.sketch.shape[2:]
         t0 = time.perf_counter()
         try:
-            outs = sess.run(spec.outputs, {"sketch": inputs.sketch, "mask": inputs.mask})
+            outs = sess.run(spec.outputs, feeds(inputs.sketch, inputs.mask))
         except Exception as exc:  # noqa: BLE001
             raise InferenceError(f"{self.garment_id}: graph {kind} failed at {w}x{h} ({exc})") from exc
         ms = 1e3 * (time.perf_counter() - t0)

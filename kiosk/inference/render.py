@@ -89,7 +89,7 @@ class FrictionSource:
 
 def compose(textures: list[Texture], size: tuple[int, int]) -> np.ndarray:
     """The panel frame the device should hold: textures pasted at their screen positions, later ones on top,
-    clipped to the device panel `size` = (width, height)."""
+    clipped to the device panel `size` = (width, height). What the haptics bench measures the felt period on."""
     w, h = size
     frame = np.zeros((h, w), np.uint8)
     for t in textures:

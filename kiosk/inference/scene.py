@@ -44,9 +44,9 @@ import cv2
 import numpy as np
 
 from kiosk.contract.errors import InputError
+from kiosk.contract.graph import GRID_MULTIPLE
 from kiosk.contract.sketch import INK, LINE_PX, PAPER, NetworkInput, network_input, object_mask, rasterize
 
-MULTIPLE = 256
 PLAN_SIDE = 320          # the coarse raster that finds the object's bounding box: longest side in pixels
 MAX_ROUNDING_LOSS = 0.15  # rounding a grid side down may lose at most this much linear resolution
 REFERENCE_FILL = 0.8     # a reference sketch fills this fraction of its panel (the rest is margin)
@@ -238,8 +238,8 @@ def choose_graph(needs: Sequence[str], available: Sequence[str]) -> str:
 
 
 def _round_options(side: float, cap: int) -> list[int]:
-    lo = max(MULTIPLE, int(side // MULTIPLE) * MULTIPLE)
-    hi = max(MULTIPLE, int(math.ceil(side / MULTIPLE)) * MULTIPLE)
+    lo = max(GRID_MULTIPLE, int(side // GRID_MULTIPLE) * GRID_MULTIPLE)
+    hi = max(GRID_MULTIPLE, int(math.ceil(side / GRID_MULTIPLE)) * GRID_MULTIPLE)
     return sorted({min(lo, cap), min(hi, cap)})
 
 
@@ -249,8 +249,8 @@ def grid_for(box: tuple[float, float], cap: tuple[int, int]) -> tuple[tuple[int,
     that loses at most MAX_ROUNDING_LOSS of resolution."""
     bw, bh = max(float(box[0]), 1.0), max(float(box[1]), 1.0)
     cw, ch = cap
-    if cw < MULTIPLE or ch < MULTIPLE or cw % MULTIPLE or ch % MULTIPLE:
-        raise InputError(f"resolution cap {cap} must be multiples of {MULTIPLE}")
+    if cw < GRID_MULTIPLE or ch < GRID_MULTIPLE or cw % GRID_MULTIPLE or ch % GRID_MULTIPLE:
+        raise InputError(f"resolution cap {cap} must be multiples of {GRID_MULTIPLE}")
     s0 = min(1.0, cw / bw, ch / bh)
     best: tuple[int, float, tuple[int, int]] | None = None
     for gw in _round_options(bw * s0, cw):
@@ -372,7 +372,7 @@ def content_key(bundle_key: str, grid: tuple[int, int], sketch: np.ndarray, mask
 def naive_pixels(panel: Panel) -> int:
     """The baseline the planner is measured against: the full graph over the whole panel at its pixels."""
     _, _, w, h = panel.rect
-    return int(math.ceil(w / MULTIPLE) * MULTIPLE * math.ceil(h / MULTIPLE) * MULTIPLE)
+    return int(math.ceil(w / GRID_MULTIPLE) * GRID_MULTIPLE * math.ceil(h / GRID_MULTIPLE) * GRID_MULTIPLE)
 
 
 class Planner:
@@ -422,8 +422,8 @@ class Planner:
     def _cap(self, bundle: BundleInfo, kind: str, preview: bool) -> tuple[int, int]:
         limit = self.preview_max_resolution if preview else self.max_resolution
         bw, bh = bundle.cap(kind)
-        return (max(MULTIPLE, min(bw, limit) // MULTIPLE * MULTIPLE),
-                max(MULTIPLE, min(bh, limit) // MULTIPLE * MULTIPLE))
+        return (max(GRID_MULTIPLE, min(bw, limit) // GRID_MULTIPLE * GRID_MULTIPLE),
+                max(GRID_MULTIPLE, min(bh, limit) // GRID_MULTIPLE * GRID_MULTIPLE))
 
     def _plan_panel(self, panel: Panel, scene: Scene, sketch: SketchInput, bundle: BundleInfo, preview: bool,
                     quick: bool, acc: Plan) -> PanelPlan:
@@ -503,8 +503,8 @@ class Planner:
         net_sketch = render_sketch(sketch, t, base, placement)
         t4 = time.perf_counter()
         acc.rasterize_ms += 1e3 * (t4 - t3)
-        # At the grid only small gaps are closed (bounded cost: large closing kernels at 512 px take 50-100 ms);
-        # the coarse raster already closed the large ones.
+        # At the grid only small gaps are closed (a closing's cost grows with its kernel, and a large one at the
+        # grid would cost more than the inference); the coarse raster already closed the large ones.
         fine_gap = min(FINE_MAX_GAP, max(3, round(GAP_FRACTION * min(pw, ph) * t.kx)))
         mask = object_mask(net_sketch, max_gap_px=fine_gap)
         if not mask.any():

@@ -35,6 +35,7 @@ from kiosk.service.config import KioskConfig
 from kiosk.service.device_output import DeviceOutput
 from kiosk.inference.engine import InferenceError, LoadedBundle, NonFiniteOutput, OutputCache, visual_rgba
 from kiosk.contract.errors import InputError, KioskError
+from kiosk.contract.graph import grid_floor
 from kiosk.ops.health import CheckResult, Heartbeat, HealthMonitor, device_check, health_metrics, http_check
 from kiosk.bundle.manifest import BundleError
 from kiosk.ops.metrics import Registry
@@ -42,6 +43,7 @@ from kiosk.ops.notify import Notifier, Watchdog, watchdog_interval_s
 from kiosk.inference.render import FrictionSource
 from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput
 from kiosk.service.server import KioskServer, Request, Response
+from kiosk.service.usage import UsageMetrics, parse_usage_event
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
@@ -121,7 +123,10 @@ class KioskDaemon:
         self.health = HealthMonitor()
         self.server = KioskServer(config.server.host, config.server.port,
                                   allow_non_loopback=config.server.allow_non_loopback,
-                                  timeout_s=config.server.request_timeout_s)
+                                  timeout_s=config.server.request_timeout_s,
+                                  header_timeout_s=config.server.header_timeout_s,
+                                  max_connections=config.server.max_connections,
+                                  server_names=config.server.names)
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
                                margin_px=inf.margin_px, cached=self.cache.has,
@@ -170,8 +175,13 @@ class KioskDaemon:
         self.m_requests = r.histogram("vtkiosk_http_request_seconds", "HTTP request latency.", labels=("route",))
         self.m_nonfinite = r.counter("vtkiosk_nonfinite_values_total",
                                      "Non-finite tactile values replaced by 0 in friction maps.")
+        self.usage = UsageMetrics(r)
         self.m_device_up.set_function(lambda: 1.0 if self.device.up else 0.0)
         self.m_degraded.set_function(lambda: 1.0 if self._notices else 0.0)
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, register_metrics
+
+            register_metrics(r, self.config.fleet.state_dir / STATE_FILE)
 
     def _device_error(self, kind: str, exc: BaseException) -> None:
         self.m_device_errors.inc(kind=kind)
@@ -232,8 +242,7 @@ class KioskDaemon:
         results = {}
         for kind in lb.graphs():
             cw, ch = lb.cap(kind)
-            grid = (max(256, min(cw, inf.max_resolution) // 256 * 256),
-                    max(256, min(ch, inf.max_resolution) // 256 * 256))
+            grid = (grid_floor(min(cw, inf.max_resolution)), grid_floor(min(ch, inf.max_resolution)))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
             runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
             ms = min(r[2] for r in runs[2:])
@@ -398,6 +407,11 @@ class KioskDaemon:
             self.add_health_check("device", dev)
         self.add_health_check("server", http_check(self.server.url + "api/ping", timeout_s=1.0))
         self.add_health_check("bundle", self._bundle_check)
+        if self.config.fleet.enabled:  # informational: an offline repository must not restart a serving kiosk
+            from kiosk.fleet.state import STATE_FILE, fleet_check
+
+            fleet = self.config.fleet
+            self.add_health_check("fleet", fleet_check(fleet.state_dir / STATE_FILE, fleet.stale_after_s))
         interval = watchdog_interval_s() or h.interval_s
         self.watchdog = Watchdog(self.notifier, self.health, interval, on_report=health_metrics(self.metrics))
         self.watchdog.start()
@@ -688,6 +702,8 @@ class KioskDaemon:
         s.route("GET", "/api/ping", lambda req: Response.json({"ok": True}))
         s.route("GET", "/api/bundles", self._api_bundles)
         s.route("POST", "/api/render", self._api_render)
+        s.route("GET", "/api/page", lambda req: Response.json(self.config.page.to_json()))
+        s.route("POST", "/api/usage", self._api_usage)
         s.route("GET", "/api/plan", lambda req: Response.json({"plan": self._last_plan}))
         s.route("GET", "/api/status", lambda req: Response.json(self.status()))
         s.route("GET", "/api/commit", self._api_commit)
@@ -698,7 +714,12 @@ class KioskDaemon:
 
     def _api_healthz(self, req: Request) -> Response:
         report = self.health.run()  # fresh: the checks only read state the working threads keep
-        return Response.json({**report.to_json(), "scale": self.scale_info()}, 200 if report.ok else 503)
+        body = {**report.to_json(), "scale": self.scale_info()}
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, section
+
+            body["fleet"] = section(self.config.fleet.state_dir / STATE_FILE, self.config.fleet.stale_after_s)
+        return Response.json(body, 200 if report.ok else 503)
 
     def scale_info(self) -> dict:
         """Both pitches: the panel's (config) and each bundle's (what its model learned at), and the ratio the
@@ -732,6 +753,10 @@ class KioskDaemon:
         except BusyError as exc:
             return Response.error(503, str(exc))
         return frame_response(result)
+
+    def _api_usage(self, req: Request) -> Response:
+        self.usage.record(parse_usage_event(req.json()))
+        return Response(204)
 
     def _api_commit(self, req: Request) -> Response:
         try:

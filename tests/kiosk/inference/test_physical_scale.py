@@ -13,7 +13,8 @@ from kiosk.bundle.archive import open_bundle
 from kiosk.bundle.signature import load_trusted_keys
 from kiosk.contract.errors import InputError
 from kiosk.inference.engine import LoadedBundle
-from kiosk.inference.scene import MULTIPLE, Panel, Planner, Scene, SketchInput, physical_grid
+from kiosk.contract.graph import GRID_MULTIPLE as MULTIPLE
+from kiosk.inference.scene import Panel, Planner, Scene, SketchInput, physical_grid
 from tests.kiosk.bundle_factory import make_bundle
 
 SCREEN = (1280, 800)
