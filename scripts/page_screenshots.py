@@ -87,10 +87,13 @@ def main(argv=None) -> int:
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", headless=True)
             ctx = browser.new_context(viewport=dict(zip(("width", "height"), VIEW)), device_scale_factor=1,
                                       has_touch=True)
+            ctx.set_default_timeout(120000)  # a loaded machine renders slowly; the pictures are the same
             page = ctx.new_page()
             page.goto(d.server.url)
             page.evaluate("window.vtkiosk.ready")
-            page.wait_for_timeout(4300)  # the attract screen filling in its first garment
+            # The attract screen filling in its first garment.
+            page.wait_for_function("(() => { const a = window.vtkiosk.attract(); return a && a.at > 0.72; })()",
+                                   timeout=60000)
             compact_png(page.screenshot(), args.out / "kiosk-attract.png", args.width)
 
             fingers = Fingers(page)
@@ -121,7 +124,7 @@ def main(argv=None) -> int:
             side = ctx.new_page()
             side.set_viewport_size({"width": 2 * VIEW[0] + 60, "height": VIEW[1] + 90})
             side.set_content(_side_by_side(shot, device))
-            compact_png(side.screenshot(), args.out / "kiosk-feeling.png", 2 * args.width)
+            compact_png(side.screenshot(), args.out / "kiosk-feeling.png", 3 * args.width // 2)
             browser.close()
     finally:
         d.stop()

@@ -55,7 +55,8 @@ const state = {
 const stats = { previews: [], finals: [], refines: [], errors: 0, requests: 0, taps: 0, cancelled: 0,
   touches: { draw: 0, feel: 0 }, usage: [], idleResets: 0 };
 let config = null;  // GET /api/page: timings and texts
-const api = { state, stats, shown: null, lastMeta: null, ready: null, config: () => config };
+const api = { state, stats, shown: null, lastMeta: null, ready: null, config: () => config,
+  attract: () => attractArt.progress() };
 window.vtkiosk = api;
 
 function dpr() { return window.devicePixelRatio || 1; }
@@ -599,7 +600,16 @@ const attractArt = (() => {
   }
 
   return {
-    async prepare(bundles) { items = (await Promise.all(bundles.map(load))).filter(Boolean); },
+    async prepare(bundles) {
+      items = (await Promise.all(bundles.map(load))).filter(Boolean);
+      t0 = performance.now();  // start with the first garment's first line
+    },
+    // Which garment is on the attract screen and how far it is (0: first line, 1: faded out); null when hidden.
+    progress() {
+      if (!raf || !items.length) return null;
+      const period = config.attract_garment_s * 1000, t = performance.now() - t0;
+      return { garment: items[Math.floor(t / period) % items.length].name, at: (t % period) / period };
+    },
     start() { if (!raf) { t0 = performance.now(); raf = requestAnimationFrame(frame); } },
     stop() { cancelAnimationFrame(raf); raf = 0; },
   };
