@@ -24,9 +24,9 @@ from trainer.augment import CropError, eval_crop_origin, object_bbox, resolve_cr
 from trainer.bootstrap import Units
 from trainer.checkpoint import CheckpointError, load_generator, read_checkpoint
 from trainer.config import config_from_dict
-from trainer.data.touchclothing import Garment, extract_patches, find_garments, load_garment
+from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
-from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
+from trainer.metrics import full_field_scores, visual_scores
 from trainer.references import object_colour, oracle, paint
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
@@ -103,7 +103,11 @@ def find_unseen(g: Garment, side: int) -> list[Unseen]:
         others = []
     out = []
     for d in others:
-        o = load_garment(d, tactile=False)
+        try:
+            o = load_garment(d, tactile=False)
+        except DatasetError as exc:
+            log.warning("eval: %s; not used as an unseen sketch", exc)
+            continue
         try:
             s = resolve_crop(side, o.mask, fit=False)
         except CropError:

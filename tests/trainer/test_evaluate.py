@@ -13,7 +13,7 @@ from trainer.augment import eval_crop_origin
 from trainer.config import load_config
 from trainer.data.synthetic import generate_dataset
 from trainer.data.touchclothing import extract_patches, load_garment
-from trainer.evaluate import Context, gap_closed, reference_predictions, score, Nets
+from trainer.evaluate import Context, Nets, find_unseen, gap_closed, reference_predictions, score
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.loop import Trainer
 from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
@@ -152,6 +152,26 @@ def test_oracle_scores_at_least_as_well_as_any_prediction_on_the_full_field(garm
         s, _ = full_field_scores(c[0], c[1], tx, ty, ctx.obj, ctx.inside, ctx.scale, ctx.origin)
         for k in FULL:
             assert o[k] <= s[k] + 1e-9, (name, k, o[k], s[k])
+
+
+def test_unseen_sketches_are_the_other_garments_and_the_edited_ones(synth, tmp_path):
+    import shutil
+    for d in synth.iterdir():
+        shutil.copytree(d, tmp_path / d.name)
+    src = tmp_path / "singleskit_DenimShorts_padded_270_x1"
+    edit = tmp_path / "singleskit_DenimShortsedit1_padded_270_x1" / "trainS"
+    edit.mkdir(parents=True)
+    sketch = cv2.imread(str(next((src / "trainS").glob("*.png"))), cv2.IMREAD_GRAYSCALE)
+    cv2.line(sketch, (60, 100), (200, 110), 0, 2)       # an edit: one more stroke
+    cv2.imwrite(str(edit / "denimshortsedit1_sketch.png"), sketch)
+    shutil.copyfile(src / "synthetic.yaml", edit.parent / "synthetic.yaml")
+    (tmp_path / "singleskit_Broken_padded_270_x1").mkdir()     # unreadable: skipped, not fatal
+    g = load_garment(src)
+    found = {u.name: u.kind for u in find_unseen(g, 256)}
+    assert found == {"singleskit_CorduroyTrousers_padded_270_x1": "other garment",
+                     "singleskit_DenimShortsedit1_padded_270_x1": "edited"}
+    assert find_unseen(load_garment(synth / "singleskit_CorduroyTrousers_padded_270_x1"), 256)[0].kind == \
+        "other garment"
 
 
 def test_gap_closed_is_guarded_where_flat_and_oracle_tie():
