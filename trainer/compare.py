@@ -131,8 +131,9 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") ->
     ref_means = {n: (rv.get("mean", {}).get(n, {}) | rt.get("mean", {}).get(n, {})) for n in refs}
     data = {"mean": means, "sd": sds, "gap_closed": gaps,
             "garments": {m: sorted({r["garment"] for r in rs}) for m, rs in by_method.items()},
-            "best": {k: v for k, v in (rv.get("best", {}) | rt.get("best", {})).items()},
-            "references": {n: {k: v for k, v in row.items() if not k.startswith("gap:")} for n, row in ref_means.items()},
+            "best": rv.get("best", {}) | rt.get("best", {}),
+            "references": {n: {k: v for k, v in row.items() if not k.startswith("gap:")}
+                           for n, row in ref_means.items()},
             "reference_gap_closed": {n: {k[4:]: v for k, v in row.items() if k.startswith("gap:")}
                                      for n, row in ref_means.items()},
             "runs": results}

@@ -24,13 +24,13 @@ from trainer.augment import CropError, eval_crop_origin, object_bbox, resolve_cr
 from trainer.bootstrap import Units
 from trainer.checkpoint import CheckpointError, load_generator, read_checkpoint
 from trainer.config import config_from_dict
-from trainer.data.touchclothing import Garment, extract_patches, find_garments, load_garment
+from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
-from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
+from trainer.metrics import full_field_scores, visual_scores
 from trainer.references import object_colour, oracle, paint
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
-from trainer.texture_distance import fb_sifid_channels
+from trainer.texture_distance import channel_banks, fb_sifid_banks, fb_sifid_channels
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,14 @@ class Context:
         self.patches = extract_patches(self.g, "test", crop_origin=self.origin, crop_size=(self.side, self.side),
                                        mode="centre")
         self._oracle = None
+        self._banks: dict[str, list[np.ndarray]] = {}
+
+    def banks(self, which: str) -> list[np.ndarray]:
+        """Filter-bank features of the photo ('visual') or the full-field truth ('tactile'), computed once: every
+        prediction and reference is compared with them."""
+        if which not in self._banks:
+            self._banks[which] = channel_banks(self.visual[0].numpy() if which == "visual" else np.stack(self.truth()))
+        return self._banks[which]
 
     def crop(self, a: np.ndarray) -> np.ndarray:
         x, y = self.origin
@@ -95,7 +103,11 @@ def find_unseen(g: Garment, side: int) -> list[Unseen]:
         others = []
     out = []
     for d in others:
-        o = load_garment(d, tactile=False)
+        try:
+            o = load_garment(d, tactile=False)
+        except DatasetError as exc:
+            log.warning("eval: %s; not used as an unseen sketch", exc)
+            continue
         try:
             s = resolve_crop(side, o.mask, fit=False)
         except CropError:
@@ -135,7 +147,7 @@ def score(ctx: Context, nets: Nets, vis: torch.Tensor | None, tac: torch.Tensor 
         s, u = visual_scores(vis[0].numpy(), ctx.visual[0].numpy(), mask, ctx.origin)
         out.update(s)
         units.update(u)
-        out["visual_fbsifid_seen"] = fb_sifid_channels(vis[0].numpy(), ctx.visual[0].numpy(), mask)
+        out["visual_fbsifid_seen"] = fb_sifid_banks(channel_banks(vis[0].numpy()), ctx.banks("visual"), mask)
         if nets.lpips is not None:
             x0, y0, x1, y1 = object_bbox(mask)
             with torch.no_grad():
@@ -155,7 +167,7 @@ def score(ctx: Context, nets: Nets, vis: torch.Tensor | None, tac: torch.Tensor 
             s, u = full_field_scores(gx, gy, truth[0], truth[1], mask, ctx.inside, ctx.scale, ctx.origin)
             out.update(s)
             units.update(u)
-            out["full_fbsifid_seen"] = fb_sifid_channels(tac[0].numpy(), np.stack(truth), mask)
+            out["full_fbsifid_seen"] = fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), mask)
     if unseen:
         out.update(_unseen_texture(ctx, nets, unseen))
     return out, units
@@ -193,12 +205,12 @@ def _unseen_texture(ctx: Context, nets: Nets, outputs) -> dict:
     for u, (vis, tac) in zip(ctx.unseen, outputs):
         um = u.mask[0, 0].numpy() > 0.5
         if vis is not None:
-            vis_d.append(fb_sifid_channels(vis[0].numpy(), ctx.visual[0].numpy(), um, ctx.obj))
+            vis_d.append(fb_sifid_banks(channel_banks(vis[0].numpy()), ctx.banks("visual"), um, ctx.obj))
             if nets.inception is not None:
                 from trainer.models.inception import sifid
                 vsifid.append(sifid(nets.inception, vis, ctx.visual))
         if tac is not None and truth is not None:
-            tac_d.append(fb_sifid_channels(tac[0].numpy(), np.stack(truth), um, ctx.obj))
+            tac_d.append(fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), um, ctx.obj))
     out: dict = {}
     for key, vals in (("visual_fbsifid_unseen", vis_d), ("visual_sifid_unseen", vsifid),
                       ("full_fbsifid_unseen", tac_d)):

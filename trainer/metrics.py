@@ -11,13 +11,12 @@ trainer.texture_distance.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from kiosk.contract.haptics import friction_map
 from trainer.bootstrap import Units, mse_to_psnr, value
-from trainer.losses.perceptual import _gauss
 
 BLOCK = 32   # pixel-block side of the bootstrap units (the tactile patch size)
 SSIM_WINDOW = 11
@@ -40,11 +39,9 @@ def l1(a: torch.Tensor, b: torch.Tensor) -> float:
 def angle_map(gx1, gy1, gx2, gy2) -> np.ndarray:
     """Per-pixel angle (degrees) between (gx1, gy1, 1) and (gx2, gy2, 1)."""
     gx1, gy1, gx2, gy2 = (_np(t) for t in (gx1, gy1, gx2, gy2))
-    n1 = np.stack([gx1, gy1, np.ones_like(gx1)], -1)
-    n2 = np.stack([gx2, gy2, np.ones_like(gx2)], -1)
-    n1 /= np.linalg.norm(n1, axis=-1, keepdims=True)   # norms >= 1: the third component is 1
-    n2 /= np.linalg.norm(n2, axis=-1, keepdims=True)
-    return np.degrees(np.arccos(np.clip((n1 * n2).sum(-1), -1.0, 1.0)))
+    # both norms are >= 1 (the third component is 1): no division by zero
+    cos = (gx1 * gx2 + gy1 * gy2 + 1.0) / (np.sqrt(gx1 * gx1 + gy1 * gy1 + 1.0) * np.sqrt(gx2 * gx2 + gy2 * gy2 + 1.0))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def angular_error_deg(gx1, gy1, gx2, gy2, mask=None) -> float:
@@ -86,30 +83,35 @@ def block_units(values: np.ndarray, weight: np.ndarray, origin: tuple[int, int],
     return Units(keys, num, den)
 
 
+def _gauss1d(window: int, sigma: float) -> np.ndarray:
+    x = np.arange(window, dtype=np.float64) - (window - 1) / 2
+    g = np.exp(-(x ** 2) / (2 * sigma ** 2))
+    return g / g.sum()
+
+
 def ssim_map(a: np.ndarray, b: np.ndarray, *, data_range: float = 1.0, window: int = SSIM_WINDOW) -> np.ndarray:
     """SSIM map (Wang et al. 2004, Gaussian window 11, sigma 1.5), mean over channels, same size as the input
     (each pixel's window is centred on it; zero padding at the crop border, where the object never is).
 
     Shape: a, b (C, H, W) -> (H, W).
     """
-    x = torch.as_tensor(np.asarray(a, np.float64))[None]
-    y = torch.as_tensor(np.asarray(b, np.float64))[None]
-    c = x.shape[1]
-    window = min(window, x.shape[-2], x.shape[-1])
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    window = min(window, a.shape[-2], a.shape[-1])
     window -= 1 - window % 2   # odd, so the window is centred
-    k = _gauss(window, 1.5 * window / SSIM_WINDOW, device=x.device, dtype=x.dtype).expand(c, 1, -1, -1)
-    pad = window // 2
+    k = _gauss1d(window, 1.5 * window / SSIM_WINDOW)
 
     def blur(t):
-        return F.conv2d(t, k, groups=c, padding=pad)
+        return cv2.sepFilter2D(t, cv2.CV_64F, k, k, borderType=cv2.BORDER_CONSTANT)
 
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
-    mu_x, mu_y = blur(x), blur(y)
-    sxx = blur(x * x) - mu_x ** 2
-    syy = blur(y * y) - mu_y ** 2
-    sxy = blur(x * y) - mu_x * mu_y
-    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x ** 2 + mu_y ** 2 + c1) * (sxx + syy + c2))
-    return s[0].mean(0).numpy()
+    out = np.zeros(a.shape[1:])
+    for x, y in zip(a, b):
+        mu_x, mu_y = blur(x), blur(y)
+        sxx = blur(x * x) - mu_x ** 2
+        syy = blur(y * y) - mu_y ** 2
+        sxy = blur(x * y) - mu_x * mu_y
+        out += ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x ** 2 + mu_y ** 2 + c1) * (sxx + syy + c2))
+    return out / a.shape[0]
 
 
 def visual_scores(fake: np.ndarray, real: np.ndarray, mask: np.ndarray,

@@ -9,21 +9,44 @@ scores well on MSE and badly here. Values are not comparable with Inception SIFI
 """
 from __future__ import annotations
 
+import functools
+
+import cv2
 import numpy as np
-from scipy import ndimage
 
 SIGMAS = (1.0, 2.0, 4.0)
 ORDERS = ((0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0))   # (d/dy, d/dx) orders per filter
 
 
+@functools.lru_cache(maxsize=None)
+def _kernel(sigma: float, order: int) -> np.ndarray:
+    """The 1-D Gaussian (derivative) kernel scipy.ndimage.gaussian_filter uses (radius 4 sigma), in correlation
+    order, so cv2's separable filter gives scipy's numbers at a fraction of the cost."""
+    r = int(4.0 * sigma + 0.5)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    phi = np.exp(-0.5 * x * x / (sigma * sigma))
+    phi /= phi.sum()
+    if order == 1:
+        phi = -x / (sigma * sigma) * phi
+    elif order == 2:
+        phi = (x * x / sigma ** 4 - 1.0 / (sigma * sigma)) * phi
+    return phi[::-1].copy()
+
+
 def filter_bank(img: np.ndarray) -> np.ndarray:
     """(H, W) -> (H, W, len(SIGMAS) * len(ORDERS)) Gaussian-derivative responses, scale-normalised (x sigma^order)
-    so fine and coarse structure weigh alike."""
+    so fine and coarse structure weigh alike. Borders are mirrored (scipy's "reflect")."""
     x = np.asarray(img, dtype=np.float64)
     if x.ndim != 2:
         raise ValueError(f"filter_bank: expected a 2-D image; got shape {x.shape}")
-    return np.stack([ndimage.gaussian_filter(x, s, order=o, mode="reflect") * s ** sum(o)
-                     for s in SIGMAS for o in ORDERS], -1)
+    out = np.empty((len(SIGMAS) * len(ORDERS),) + x.shape)   # planes contiguous; returned as a (H, W, D) view
+    i = 0
+    for s in SIGMAS:
+        for oy, ox in ORDERS:
+            cv2.sepFilter2D(x, cv2.CV_64F, _kernel(s, ox), _kernel(s, oy), dst=out[i], borderType=cv2.BORDER_REFLECT)
+            out[i] *= s ** (oy + ox)
+            i += 1
+    return np.moveaxis(out, 0, -1)
 
 
 def frechet(xa: np.ndarray, xb: np.ndarray) -> float:
@@ -58,8 +81,25 @@ def fb_sifid(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
     return frechet(xa, xb)
 
 
+def channel_banks(a: np.ndarray) -> list[np.ndarray]:
+    """filter_bank of each channel of a (C, H, W) image: computed once when one image is compared many times."""
+    return [filter_bank(c) for c in np.asarray(a)]
+
+
+def fb_sifid_banks(fa: list[np.ndarray], fb: list[np.ndarray], mask: np.ndarray | None = None,
+                   mask_b: np.ndarray | None = None) -> float:
+    """Mean over channels of FB-SIFID from precomputed `channel_banks` (masks as in `fb_sifid`)."""
+    ma = None if mask is None else np.asarray(mask).astype(bool)
+    mb = ma if mask_b is None else np.asarray(mask_b).astype(bool)
+    vals = []
+    for a, b in zip(fa, fb):
+        xa = a.reshape(-1, a.shape[-1]) if ma is None else a[ma]
+        xb = b.reshape(-1, b.shape[-1]) if mb is None else b[mb]
+        vals.append(frechet(xa, xb))
+    return float(np.mean(vals))
+
+
 def fb_sifid_channels(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
                       mask_b: np.ndarray | None = None) -> float:
     """Mean FB-SIFID over channels of (C, H, W) images (per channel, as the paper's tactile SIFID)."""
-    vals = [fb_sifid(a[c], b[c], mask, mask_b) for c in range(a.shape[0])]
-    return float(np.mean(vals))
+    return fb_sifid_banks(channel_banks(a), channel_banks(b), mask, mask_b)

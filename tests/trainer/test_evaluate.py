@@ -1,0 +1,217 @@
+"""The evaluation protocol: every held-out patch centre, inside/outside masks, masked visual metrics, the reference
+rows (flat, mean-colour, oracle), gap closed, and `vtkiosk eval --compare` end to end on tiny runs."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from trainer.augment import eval_crop_origin
+from trainer.config import load_config
+from trainer.data.synthetic import generate_dataset
+from trainer.data.touchclothing import extract_patches, load_garment
+from trainer.evaluate import Context, Nets, find_unseen, gap_closed, reference_predictions, score
+from trainer.heldout import heldout_errors, touch_rect_mask
+from trainer.loop import Trainer
+from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
+from trainer.references import exported_head, fit_sensor_blur, oracle
+from trainer.sampling import patches_to_tensors
+from vtkiosk.cli import main as vtkiosk
+
+FULL = ("full_angle_deg", "full_angle_deg_inside", "full_angle_deg_outside", "full_friction_mae",
+        "full_friction_mae_inside", "full_friction_mae_outside")
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth_eval")
+    generate_dataset(root, garments=2, seed=0, frame=(192, 144), progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def garment(synth):
+    return load_garment(synth / "singleskit_DenimShorts_padded_270_x1")
+
+
+def _ctx(g, side=256):
+    return Context(g, side, eval_crop_origin(g.mask, side), 0.05)
+
+
+def _pooled(g, ctx, gx, gy, per_touch):
+    """Brute force: cut every patch (extract_patches) and pool their contact pixels."""
+    ps = extract_patches(g, "test", crop_origin=ctx.origin, crop_size=(ctx.side, ctx.side),
+                         per_touch=per_touch, mode="random", rng=np.random.default_rng(0))
+    tgx, tgy, c = patches_to_tensors(ps, np.arange(len(ps)))
+    fake = torch.stack([torch.stack([torch.from_numpy(gx[y:y + 32, x:x + 32]),
+                                     torch.from_numpy(gy[y:y + 32, x:x + 32])]) for x, y in ps.origin.tolist()])
+    return tactile_patch_metrics(fake, tgx, tgy, c), len(ps)
+
+
+def test_every_held_out_centre_is_scored_exactly_as_cutting_every_patch(garment):
+    ctx = _ctx(garment)
+    rng = np.random.default_rng(1)
+    gx, gy = (rng.normal(0, 0.1, (ctx.side, ctx.side)).astype(np.float32) for _ in range(2))
+    allc = heldout_errors(garment, "test", ctx.origin, ctx.side, gx, gy)
+    want, n = _pooled(garment, ctx, gx, gy, per_touch=10 ** 6)
+    s = allc.scores()
+    assert s["test_patches"] == n > 10 * s["test_touches"]
+    assert s["tactile_angle_deg"] == pytest.approx(want["tactile_angle_deg"], rel=1e-6)
+    assert s["tactile_mse"] == pytest.approx(want["tactile_mse"], rel=1e-5)
+    # "middle" reproduces the old one-patch-per-touch protocol
+    mid = heldout_errors(garment, "test", ctx.origin, ctx.side, gx, gy, centres="middle").scores()
+    ps = ctx.patches
+    tgx, tgy, c = patches_to_tensors(ps, np.arange(len(ps)))
+    fake = torch.stack([torch.stack([torch.from_numpy(gx[y:y + 32, x:x + 32]),
+                                     torch.from_numpy(gy[y:y + 32, x:x + 32])]) for x, y in ps.origin.tolist()])
+    old = tactile_patch_metrics(fake, tgx, tgy, c)
+    assert mid["test_patches"] == len(ps)
+    assert mid["tactile_angle_deg"] == pytest.approx(old["tactile_angle_deg"], rel=1e-6)
+    assert mid["tactile_mse"] == pytest.approx(old["tactile_mse"], rel=1e-5)
+    with pytest.raises(ValueError, match="centres"):
+        heldout_errors(garment, "test", ctx.origin, ctx.side, gx, gy, centres="some")
+
+
+def test_inside_and_outside_masks_split_the_object_at_the_training_rectangles(garment):
+    rects = touch_rect_mask(garment, "train")
+    for t in garment.touches["train"]:
+        r = t.rect
+        assert rects[r.y:r.y + r.h, r.x:r.x + r.w].all()
+    built = np.zeros_like(rects)
+    for t in garment.touches["train"]:
+        built[t.rect.y:t.rect.y + t.rect.h, t.rect.x:t.rect.x + t.rect.w] = True
+    assert np.array_equal(rects, built) and not rects[~built].any()
+    ctx = _ctx(garment)
+    assert np.array_equal(ctx.inside, ctx.crop(rects) & ctx.obj)
+    assert 0 < ctx.inside.sum() < ctx.obj.sum()
+    # a prediction that is exact inside the rectangles and flat outside: zero error inside, flat's error outside
+    tx, ty = ctx.truth()
+    gx, gy = np.where(ctx.inside, tx, 0), np.where(ctx.inside, ty, 0)
+    s, u = full_field_scores(gx, gy, tx, ty, ctx.obj, ctx.inside, 0.05, ctx.origin)
+    flat, _ = full_field_scores(0 * tx, 0 * ty, tx, ty, ctx.obj, ctx.inside, 0.05, ctx.origin)
+    assert s["full_angle_deg_inside"] == pytest.approx(0, abs=1e-5) and s["full_friction_mae_inside"] == 0
+    assert s["full_angle_deg_outside"] == pytest.approx(flat["full_angle_deg_outside"])
+    f = s["full_inside_fraction"]
+    assert s["full_angle_deg"] == pytest.approx((1 - f) * s["full_angle_deg_outside"], abs=1e-5)
+    assert u["full_angle_deg"].den.sum() == ctx.obj.sum()
+
+
+def test_visual_metrics_look_inside_the_object_mask_only():
+    rng = np.random.default_rng(0)
+    real = rng.uniform(-1, 1, (3, 64, 64))
+    mask = np.zeros((64, 64), bool)
+    mask[16:48, 20:50] = True
+    fake = real.copy()
+    fake[:, ~mask] = -real[:, ~mask]            # wrong everywhere off the object
+    s, u = visual_scores(fake, real, mask, (0, 0))
+    assert s["visual_psnr"] == pytest.approx(120.0) and s["visual_l1"] == 0.0
+    fake[:, mask] += 0.1                         # 0.05 on [0, 1]: MSE 0.0025, PSNR 26.02 dB
+    s, _ = visual_scores(np.clip(fake, -2, 2), real, mask, (0, 0))
+    assert s["visual_psnr"] == pytest.approx(10 * np.log10(1 / 0.0025)) and s["visual_l1"] == pytest.approx(0.1)
+    assert visual_scores(real, real, mask, (0, 0))[0]["visual_ssim"] == pytest.approx(1.0)
+
+
+def test_oracle_is_the_truth_through_the_measured_sensor_blur_and_the_exported_head(garment):
+    o = oracle(garment)
+    assert o.sigma_px == 0.0 and o.precision == "float32"   # these touches are truth + white noise: no blur
+    ft = garment.full_tactile
+    assert np.array_equal(o.gx, exported_head(ft.gx, garment.mask))
+    assert np.abs(o.gx).max() <= 1.0 and not o.gx[~garment.mask].any()
+    # touches recorded through a 1.5 px gel blur: the fit finds it
+    blurred = load_garment(garment.root)
+    bx = cv2.GaussianBlur(ft.gx, (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    by = cv2.GaussianBlur(ft.gy, (0, 0), 1.5, borderType=cv2.BORDER_REFLECT)
+    for t in blurred.touches["train"]:
+        r = t.rect
+        t.gx, t.gy = bx[r.y:r.y + r.h, r.x:r.x + r.w], by[r.y:r.y + r.h, r.x:r.x + r.w]
+    assert fit_sensor_blur(blurred)[0] == pytest.approx(1.5)
+    half = exported_head(np.array([[0.1 + 1e-4, 3.0]]), np.ones((1, 2)), "fp16")
+    assert half[0, 0] == np.float16(0.1 + 1e-4) and half[0, 1] == 1.0
+    with pytest.raises(ValueError, match="precision"):
+        exported_head(ft.gx, garment.mask, "int4")
+
+
+def test_oracle_scores_at_least_as_well_as_any_prediction_on_the_full_field(garment):
+    ctx = _ctx(garment)
+    nets = Nets(load_config("tiny").pretrained)
+    refs = reference_predictions(ctx)
+    assert set(refs) == {"flat", "mean-colour", "oracle"}
+    o, _ = score(ctx, nets, None, refs["oracle"][1])
+    tx, ty = ctx.truth()
+    rng = np.random.default_rng(0)
+    t = torch.from_numpy(np.stack([tx, ty]))[None]
+    m = torch.from_numpy(ctx.obj.astype(np.float32))
+    candidates = {"flat": refs["flat"][1], "noisy": t + 0.05 * torch.from_numpy(rng.normal(size=t.shape)).float(),
+                  "too strong": 1.3 * t, "blurred": torch.from_numpy(np.stack(
+                      [cv2.GaussianBlur(a, (0, 0), 2.0) for a in (tx, ty)]))[None]}
+    for name, c in candidates.items():
+        c = (c.clamp(-1, 1) * m)[0].numpy()      # what a generator's head can emit: tanh range, 0 off the object
+        s, _ = full_field_scores(c[0], c[1], tx, ty, ctx.obj, ctx.inside, ctx.scale, ctx.origin)
+        for k in FULL:
+            assert o[k] <= s[k] + 1e-9, (name, k, o[k], s[k])
+
+
+def test_unseen_sketches_are_the_other_garments_and_the_edited_ones(synth, tmp_path):
+    import shutil
+    for d in synth.iterdir():
+        shutil.copytree(d, tmp_path / d.name)
+    src = tmp_path / "singleskit_DenimShorts_padded_270_x1"
+    edit = tmp_path / "singleskit_DenimShortsedit1_padded_270_x1" / "trainS"
+    edit.mkdir(parents=True)
+    sketch = cv2.imread(str(next((src / "trainS").glob("*.png"))), cv2.IMREAD_GRAYSCALE)
+    cv2.line(sketch, (60, 100), (200, 110), 0, 2)       # an edit: one more stroke
+    cv2.imwrite(str(edit / "denimshortsedit1_sketch.png"), sketch)
+    shutil.copyfile(src / "synthetic.yaml", edit.parent / "synthetic.yaml")
+    (tmp_path / "singleskit_Broken_padded_270_x1").mkdir()     # unreadable: skipped, not fatal
+    g = load_garment(src)
+    found = {u.name: u.kind for u in find_unseen(g, 256)}
+    assert found == {"singleskit_CorduroyTrousers_padded_270_x1": "other garment",
+                     "singleskit_DenimShortsedit1_padded_270_x1": "edited"}
+    assert find_unseen(load_garment(synth / "singleskit_CorduroyTrousers_padded_270_x1"), 256)[0].kind == \
+        "other garment"
+
+
+def test_gap_closed_is_guarded_where_flat_and_oracle_tie():
+    flat, orc = {"tactile_angle_deg": 20.0, "tactile_mse": 0.1}, {"tactile_angle_deg": 4.0, "tactile_mse": 0.1}
+    g = gap_closed({"tactile_angle_deg": 8.0, "tactile_mse": 0.05, "visual_psnr": 30.0}, flat, orc)
+    assert g == {"tactile_angle_deg": pytest.approx(0.75), "tactile_mse": None}
+    assert gap_closed(flat, flat, orc)["tactile_angle_deg"] == 0.0
+    assert gap_closed(orc, flat, orc)["tactile_angle_deg"] == 1.0
+
+
+@pytest.mark.slow
+def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_path, capsys):
+    runs = []
+    for garment_name in ("DenimShorts", "CorduroyTrousers"):
+        for method in ("ours", "pix2pix"):
+            cfg = load_config("tiny", method=method, overrides=["train.steps=1", "train.threads=1"])
+            out = tmp_path / garment_name / method
+            Trainer(cfg, synth / f"singleskit_{garment_name}_padded_270_x1", out).run()
+            runs.append(out)
+    cmp_dir = tmp_path / "cmp"
+    assert vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir), "--bootstrap", "200"]) == 0
+    md = (cmp_dir / "compare.md").read_text()
+    for row in ("| ours |", "| pix2pix |", "| *flat* (reference) |", "| *mean-colour* (reference) |",
+                "| *oracle* (reference) |", "paired bootstrap 95 % interval", "| *flat* | – |", "outside° ↓"):
+        assert row in md, row
+    assert md.count("gap") >= 6
+    data = json.loads((cmp_dir / "compare.json").read_text())
+    assert set(data["references"]) == {"flat", "mean-colour", "oracle"}
+    assert data["reference_gap_closed"]["oracle"]["full_angle_deg"] == 1.0
+    assert {"tactile_angle_deg", "full_angle_deg_outside"} <= set(data["gap_closed"]["pix2pix"])
+    d = data["differences"]["rows"]["pix2pix"]["full_angle_deg"]
+    assert d["lo"] <= d["diff"] <= d["hi"] and d["garments"] == 2
+    for r in data["runs"]:   # the oracle beats every trained run on the full field, garment by garment
+        assert all(r["references"]["oracle"][k] <= r[k] for k in FULL)
+        assert r["test_patches"] > r["test_touches"] and r["unseen_sketches"][0]["kind"] == "other garment"
+        assert "visual_fbsifid_unseen" in r and "visual_fbsifid_seen" in r and "full_fbsifid_unseen" in r
+    assert (cmp_dir / "sheet_DenimShorts.png").is_file() and (cmp_dir / "sheet_CorduroyTrousers.png").is_file()
+    sheet = cv2.imread(str(cmp_dir / "sheet_DenimShorts.png"))
+    assert sheet.shape[0] == 256 * 6   # sketch row, truth, flat + mean-colour, oracle, ours, pix2pix
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        vtkiosk(["eval", "--compare", str(runs[0]), "--bootstrap", "10"])
+    assert "--bootstrap must be at least 100" in capsys.readouterr().err
