@@ -93,8 +93,9 @@ def _people(n: int) -> str:
 
 
 def analyse(state: LogState, read: LogRead | None = None, *, resamples: int = 10000, seed: int = 0,
-            merged: Merged | None = None) -> dict:
-    """The full report as a JSON-ready dict (withdrawn participants left out)."""
+            merged: Merged | None = None, strengths: bool = True) -> dict:
+    """The full report as a JSON-ready dict (withdrawn participants left out). `strengths=False` leaves out the
+    Bradley-Terry fit (the slowest part; study planning simulates thousands of reports without it)."""
     withdrawn = set(state.withdrawn)
     all_responses = state.responses()
     responses = [r for r in all_responses if r["participant"] not in withdrawn]
@@ -120,7 +121,7 @@ def analyse(state: LogState, read: LogRead | None = None, *, resamples: int = 10
         overall["by_kiosk"] = _by([{**r, "kiosk": r.get("kiosk", "?")} for r in test], "kiosk")
     bt = None
     conditions = {reference} | {c["baseline"] for c in comparisons}
-    if len(conditions) > 2:
+    if len(conditions) > 2 and strengths:
         wins: dict[tuple[str, str], int] = defaultdict(int)
         for r in test:
             if r["timeout"]:
