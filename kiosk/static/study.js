@@ -59,7 +59,7 @@ function borderColour(img) {
   const c = document.createElement("canvas");
   c.width = img.naturalWidth;
   c.height = img.naturalHeight;
-  const g = c.getContext("2d");
+  const g = c.getContext("2d", { willReadFrequently: true });
   g.drawImage(img, 0, 0);
   const { data } = g.getImageData(0, 0, c.width, c.height);
   let r = 0, gr = 0, b = 0, n = 0;

@@ -504,7 +504,7 @@ class StudyService:
                 "number": (tests.index(t) + 1) if t.block == "test" else None, "of": len(tests),
                 "time_limit_s": self._time_limit(t), "time_left_s": self._time_left(a),
                 "question": self.config.question, "kind": self.config.kind,
-                "instructions": self.config.instructions if t.block == "warmup" else None,
+                "instructions": _practice_hint(self._time_limit(t) is None) if t.block == "warmup" else None,
                 "screen": list(self.layout.screen), "question_rect": list(self.layout.question),
                 "panels": [{"side": side, "rect": list(self.layout.panels[side]),
                             "placement": a.rendered.placements[side]} for side in SIDES],
@@ -774,6 +774,11 @@ _VISUAL_RE = re.compile(r"/api/study/visual/([a-z0-9][a-z0-9._-]{0,63})\.png")
 _IMAGE_RE = re.compile(r"/api/study/image/([0-9a-z-]{1,64})/(left|right)\.png")
 _TEXTURE_RE = re.compile(r"/api/study/texture/([0-9a-z-]{1,64})\.png")
 _IMAGE_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp"}
+
+
+def _practice_hint(untimed: bool) -> str:
+    """One short line under the question during practice (the full instructions were on the screen before)."""
+    return "Practice pair: it is not counted" + (" and not timed." if untimed else ".")
 
 
 def _png(pixels: np.ndarray) -> bytes:
