@@ -450,15 +450,7 @@ class StudyService:
         a.token = f"{a.key[1]}-{trial.index}-{secrets.token_hex(6)}"
 
     def scene_for(self, trial: Trial) -> Scene:
-        """Haptic: reference visual on both halves (no visual inference), tactile from each side's condition, the
-        same half. Visual: each side's visual output from the reference sketch, whole garment, no tactile."""
-        haptic = self.config.kind == "haptic"
-        panels = tuple(Panel(id=side, rect=self.layout.panels[side],
-                             bundle=self.bundles.get(trial.condition_on(side), trial.garment).key,
-                             visual="reference" if haptic else "model", tactile="model" if haptic else "none",
-                             sketch="reference", half=trial.half)
-                       for side in SIDES)
-        return Scene(panels=panels, screen=self.layout.screen)
+        return trial_scene(self.config, self.bundles, self.layout, trial)
 
     def _time_limit(self, trial: Trial) -> float | None:
         return self.config.time_limit_s if trial.timed else None
@@ -774,6 +766,18 @@ _VISUAL_RE = re.compile(r"/api/study/visual/([a-z0-9][a-z0-9._-]{0,63})\.png")
 _IMAGE_RE = re.compile(r"/api/study/image/([0-9a-z-]{1,64})/(left|right)\.png")
 _TEXTURE_RE = re.compile(r"/api/study/texture/([0-9a-z-]{1,64})\.png")
 _IMAGE_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp"}
+
+
+def trial_scene(config: StudyConfig, bundles: StudyBundles, layout: Layout, trial: Trial) -> Scene:
+    """Haptic: reference visual on both halves (no visual inference), tactile from each side's condition, the same
+    half. Visual: each side's visual output from the reference sketch, whole garment, no tactile."""
+    haptic = config.kind == "haptic"
+    panels = tuple(Panel(id=side, rect=layout.panels[side],
+                         bundle=bundles.get(trial.condition_on(side), trial.garment).key,
+                         visual="reference" if haptic else "model", tactile="model" if haptic else "none",
+                         sketch="reference", half=trial.half)
+                   for side in SIDES)
+    return Scene(panels=panels, screen=layout.screen)
 
 
 def _practice_hint(untimed: bool) -> str:
