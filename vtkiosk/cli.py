@@ -21,7 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e)"),
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
-    "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),
+    "study": ("kiosk.study.cli", "plan, run and analyse haptic and visual A/B user studies"),
     "demo": ("vtkiosk.demo", "the main job: the kiosk on a demo bundle with the emulated device"),
 }
 

@@ -12,7 +12,8 @@ from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
 from tests.kiosk.bundle_factory import base_manifest, make_assets
 
-GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "gaugan": 0.05, "abl": 0.08, "abl2": 0.07}
+GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "gaugan": 0.05, "abl": 0.08, "ours-no-gan": 0.09,
+         "ours-no-rec": 0.07}
 
 
 def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
