@@ -27,6 +27,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
+from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import NetworkInput
 
 FP32_ISLANDS = ("pe", "first-conv", "heads", "tactile-branch")
@@ -39,7 +40,7 @@ class _Reader(CalibrationDataReader):
     """Feeds calibration sketches; `set_range` lets ORT calibrate in chunks of one size each (below)."""
 
     def __init__(self, inputs: Sequence[NetworkInput]):
-        self._feeds = [{"sketch": x.sketch, "mask": x.mask} for x in inputs]
+        self._feeds = [feeds(x.sketch, x.mask) for x in inputs]
         self._it = iter(self._feeds)
 
     def __len__(self) -> int:

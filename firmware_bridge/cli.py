@@ -5,13 +5,14 @@ Expected failures raise `BridgeError` subclasses (user_facing) that the dispatch
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
+import time
 from pathlib import Path
 
 from .config import DEFAULT_PID, DEFAULT_VID, BridgeConfig, EmulatorConfig, FaultConfig
+from .config_loader import build, load_yaml
 from .errors import BridgeError, ConfigError, NoDeviceError
+from .signals import on_signals
 
 
 def _int(text: str) -> int:
@@ -28,15 +29,10 @@ def _size(text: str) -> tuple[int, int]:
 
 def _load_config(args) -> BridgeConfig:
     if args.config:
-        import yaml
-
-        try:
-            data = yaml.safe_load(Path(args.config).read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{args.config}: not valid YAML ({exc})") from None
-        if isinstance(data, dict) and isinstance(data.get("bridge"), dict):
+        data = load_yaml(args.config, error=ConfigError, what="bridge config")
+        if isinstance(data.get("bridge"), dict):
             data = data["bridge"]
-        cfg = BridgeConfig.from_mapping(data)
+        cfg = build(BridgeConfig, data, error=ConfigError, base_dir=Path(args.config).parent, where=args.config)
     else:
         cfg = BridgeConfig(type="hid")
     changes = {k: v for k, v in (("vid", args.vid), ("pid", args.pid), ("serial", args.serial),
@@ -95,16 +91,12 @@ def cmd_emulate(args) -> int:
         server.start()
     except OSError as exc:
         raise BridgeError(f"cannot listen on {args.socket} ({exc})") from None
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: (stop.set(), server.stop()))
-    if args.duration > 0:
-        timer = threading.Timer(args.duration, server.stop)
-        timer.daemon = True
-        timer.start()
-    print(f"emulated bridge listening on {args.socket} ({w}x{h} panel, {args.tile}x{args.tile} tiles, "
-          f"{args.report_size} B reports, serial {args.serial}); Ctrl-C to stop", flush=True)
-    server.serve_forever()
+    deadline = time.monotonic() + args.duration if args.duration > 0 else None
+    with on_signals() as signals:
+        print(f"emulated bridge listening on {args.socket} ({w}x{h} panel, {args.tile}x{args.tile} tiles, "
+              f"{args.report_size} B reports, serial {args.serial}); Ctrl-C to stop", flush=True)
+        server.serve_forever(should_stop=lambda: signals.stop or (deadline is not None
+                                                                  and time.monotonic() >= deadline))
     print(f"emulated bridge stopped; {len(emu.committed)} frames committed", flush=True)
     return 0
 

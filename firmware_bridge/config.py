@@ -10,19 +10,36 @@ Example (the `bridge:` block of a kiosk config)::
     ack_timeout_s: 0.05
     max_retries: 5
 
-Units: seconds for every *_s field, bytes for sizes. Unknown keys and wrong types are errors that name the key.
+Units: seconds for every *_s field, bytes for sizes. Unknown keys and wrong types are errors that name the key
+(the project's one loader, carried here as `config_loader` because this package imports nothing of ours).
 """
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_type_hints
+from typing import Any
 
+from . import config_loader
 from .errors import ConfigError
 
 DEFAULT_VID = 0x1209  # pid.codes open-source VID: a placeholder until the bridge controller has its own
 DEFAULT_PID = 0x0001  # pid.codes test PID: placeholder, configurable
+
+
+def _usb_number(value: Any) -> int:
+    """USB ids and endpoint addresses are written in hex in every datasheet, so '0x1209' is accepted too."""
+    if isinstance(value, str):
+        try:
+            return int(value, 0)
+        except ValueError:
+            raise ValueError(f"must be an int or a hex string like '0x1209', got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"must be an int or a hex string like '0x1209', got {value!r}")
+    return value
+
+
+_HEX = {"parse": _usb_number}
 
 
 @dataclass(frozen=True)
@@ -102,12 +119,12 @@ class BridgeConfig:
     """
 
     type: str = "emulated"
-    vid: int = DEFAULT_VID
-    pid: int = DEFAULT_PID
+    vid: int = field(default=DEFAULT_VID, metadata=_HEX)
+    pid: int = field(default=DEFAULT_PID, metadata=_HEX)
     serial: str | None = None
     report_size: int = 64
-    ep_out: int = 0x01
-    ep_in: int = 0x81
+    ep_out: int = field(default=0x01, metadata=_HEX)
+    ep_in: int = field(default=0x81, metadata=_HEX)
     interface: int = 0
     socket: str | None = None
     ack_timeout_s: float = 0.05
@@ -150,24 +167,20 @@ class BridgeConfig:
     @classmethod
     def from_mapping(cls, data: dict[str, Any] | None) -> "BridgeConfig":
         """Build from a plain mapping (e.g. parsed YAML). Hex strings are accepted for vid/pid/ep_*."""
-        return _build(cls, data or {}, "")
+        return config_loader.build(cls, data, error=ConfigError)
 
     @classmethod
     def from_yaml(cls, path: str | Path, key: str | None = None) -> "BridgeConfig":
         """Load a YAML file; `key` selects a sub-mapping (e.g. 'bridge')."""
-        import yaml
-
-        try:
-            data = yaml.safe_load(Path(path).read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        data: Any = config_loader.load_yaml(path, error=ConfigError, what="bridge config")
         if key is not None:
-            if not isinstance(data, dict) or key not in data:
+            if key not in data:
                 raise ConfigError(f"{path}: no '{key}' mapping")
             data = data[key]
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of bridge settings")
-        return cls.from_mapping(data)
+        base = Path(path).parent
+        return config_loader.build(cls, data, error=ConfigError, base_dir=base, where=str(path))
 
     def replace(self, **changes: Any) -> "BridgeConfig":
         return dataclasses.replace(self, **changes)
@@ -177,44 +190,3 @@ def _registered(type_name: str) -> bool:
     from .transports import TRANSPORTS
 
     return type_name in TRANSPORTS
-
-
-_HEX_FIELDS = {"vid", "pid", "ep_out", "ep_in"}
-
-
-def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{prefix.rstrip('.') or 'config'} must be a mapping, got {type(data).__name__}")
-    hints = get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        raise ConfigError(f"unknown {prefix or 'bridge '}key(s) {unknown}; valid keys: {names}")
-    kwargs: dict[str, Any] = {}
-    for name, value in data.items():
-        hint = hints[name]
-        key = f"{prefix}{name}"
-        if dataclasses.is_dataclass(hint):
-            kwargs[name] = _build(hint, value, key + ".")
-            continue
-        kwargs[name] = _coerce(key, name, value, hint)
-    return cls(**kwargs)
-
-
-def _coerce(key: str, name: str, value: Any, hint: Any) -> Any:
-    optional = hint in (str | None, int | None)
-    if value is None:
-        if optional:
-            return None
-        raise ConfigError(f"{key} must not be null")
-    base = str if hint in (str, str | None) else int if hint in (int, int | None) else hint
-    if base is int and name in _HEX_FIELDS and isinstance(value, str):
-        try:
-            return int(value, 0)
-        except ValueError:
-            raise ConfigError(f"{key} must be an int or a hex string like '0x1209', got {value!r}") from None
-    if base is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if base is int and isinstance(value, bool) or not isinstance(value, base):
-        raise ConfigError(f"{key} must be {base.__name__}, got {type(value).__name__} {value!r}")
-    return value

@@ -4,7 +4,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-apt_pkgs=(libsystemd-dev pkg-config chromium systemd cage)  # systemd, cage: tests/systemd verify the units
+# Everything the tests need, so none of them skips (under CI=true a skip fails): chromium for the page tests
+# (Playwright drives /usr/bin/chromium; its Python package comes with the dev extra), systemd (systemd-analyze,
+# -sysusers, -tmpfiles) and cage to verify the shipped units, libseccomp2 for the sandbox test, libsystemd-dev +
+# pkg-config to build the journal extra. The tests that need root need CI to run as root.
+apt_pkgs=(libsystemd-dev pkg-config chromium systemd cage libseccomp2)
 missing=()
 for p in "${apt_pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -28,7 +32,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   .venv/bin/pip install -q --upgrade pip
   # torch first, from the CPU wheel; the constraints file keeps every later resolve on it.
   .venv/bin/pip install -q -c constraints.txt "torch==2.13.0"
-  extras="train,export,dev"
+  extras="train,export,fleet,dev"
   if pkg-config --exists libsystemd 2>/dev/null; then extras="$extras,journal"; fi
   .venv/bin/pip install -q -c constraints.txt -e ".[${extras}]"
   echo "$want" > "$stamp"

@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.ci_skips import pytest_make_collect_report, pytest_runtest_makereport  # noqa: F401 - hooks
+
 REAL_OFFSET = (260, 420)  # published: 1280x960 frame centred in 1800x1800
 
 

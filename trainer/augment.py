@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from kiosk.contract.errors import KioskError
+from kiosk.contract.graph import GRID_MULTIPLE
+from trainer.errors import TrainerError
 
-MULTIPLE = 256
 
 
-class CropError(KioskError):
+class CropError(TrainerError):
     """The object cannot be kept inside a crop of the requested size."""
 
 
@@ -33,7 +33,7 @@ def resolve_crop(crop: int, mask: np.ndarray, *, fit: bool = True) -> int:
         if not fit:
             raise CropError(f"the object ({x1 - x0}x{y1 - y0} px) does not fit a {crop} px crop; "
                             f"set data.fit_crop or a larger data.crop")
-        side = -(-need // MULTIPLE) * MULTIPLE
+        side = -(-need // GRID_MULTIPLE) * GRID_MULTIPLE
     if side > p:
         raise CropError(f"a {side} px crop does not fit the {p} px padded image "
                         f"(object {x1 - x0}x{y1 - y0} px); use a smaller garment frame")

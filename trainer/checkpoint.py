@@ -14,10 +14,10 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 
 
-class CheckpointError(KioskError):
+class CheckpointError(TrainerError):
     """A run without a usable checkpoint; the message names the file."""
 
 
@@ -50,7 +50,7 @@ def read_checkpoint(run_dir: Path, which: str = "best") -> dict:
     return ck
 
 
-def load_generator(run_dir: Path, which: str = "best", *, outputs: str = "both") -> tuple[nn.Module, dict]:
+def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]:
     """The trained generator in eval mode, and info: method, step, model_config, generator_class, friction_scale,
     info (perceptual backbone etc.), path. Raises CheckpointError on anything missing or mismatched."""
     ck = read_checkpoint(run_dir, which)
@@ -59,13 +59,13 @@ def load_generator(run_dir: Path, which: str = "best", *, outputs: str = "both")
     if name not in classes:
         raise CheckpointError(f"{run_dir}: unknown generator class {name!r}")
     try:
-        net = classes[name].from_config(ck["model_config"], outputs=outputs)
+        net = classes[name].from_config(ck["model_config"])
         state = {k.removeprefix("module."): v for k, v in ck["generator"].items()}
         net.load_state_dict(state, strict=True)
     except (RuntimeError, TypeError, KeyError) as exc:
         raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
     net.eval()
     info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
-                                   "garment", "crop")}
+                                   "garment", "crop", "pixel_pitch_mm")}
     info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")
     return net, info

@@ -1,24 +1,28 @@
-"""Typed run configuration: dataclasses filled from a YAML preset (+ `--set section.key=value` overrides),
-validated (unknown keys are errors), printed and saved as `RUN/config.yaml` with every run.
+"""Typed run configuration: frozen dataclasses read from a YAML preset (+ `--set section.key=value` overrides) by
+the project's one loader (`kiosk.config.loader`), validated, printed and saved as `RUN/config.yaml` with every run.
 """
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
-from kiosk.contract.errors import KioskError
+from kiosk.config import loader
+from kiosk.contract.graph import GRID_MULTIPLE, is_grid
+from trainer.errors import TrainerError
+from trainer.recipe.diffaug import parse_policy
+from trainer.recipe.schedule import POLICIES
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 
 
-class ConfigError(KioskError):
+class ConfigError(TrainerError):
     """A preset or override that does not fit the typed config; the message names the key."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class DataConfig:
     crop: int = 1536              # training/eval crop side in padded-frame px (multiple of 256)
     fit_crop: bool = True         # grow the crop (multiples of 256) when the object does not fit in `crop`
@@ -31,7 +35,7 @@ class DataConfig:
     unpaired_sampling: str = "laplacian"
 
 
-@dataclass
+@dataclass(frozen=True)
 class ModelConfig:
     base: int = 10
     pe_dim: int = 4
@@ -45,7 +49,7 @@ class ModelConfig:
     resnet_blocks: int = 9
 
 
-@dataclass
+@dataclass(frozen=True)
 class LossConfig:
     visual_l1: float = 100.0
     visual_perceptual: float = 1.0
@@ -70,16 +74,25 @@ class LossConfig:
     # linearly from 0 to `tactile_gan` (0 = off).
     tactile_r1: float = 1.0
     tactile_gan_ramp: float = 0.0
+    # DiffAugment on the discriminators' inputs (trainer/recipe/diffaug.py): comma-separated ops from color,
+    # translation, cutout (the authors' `--use_diffaug` policy is all three); "" = off.
+    diffaug: str = ""
+    # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
+    tactile_texture: float = 0.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class OptimConfig:
     lr: float = 1e-3
     betas: tuple[float, float] = (0.0, 0.99)
     lr_tactile_d: float = 5e-4
+    # "linear": every rate held, then decayed linearly to zero from `decay_from` (fraction of the schedule) to the
+    # end, as the authors' runs (`lr_policy linear`, n_epochs = n_epochs_decay); "constant": never decayed.
+    lr_policy: str = "linear"
+    decay_from: float = 0.5
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainConfig:
     steps: int = 81000            # 405 epochs x 200 iterations
     seed: int = 0
@@ -90,9 +103,11 @@ class TrainConfig:
     sample_every: int = 2000
     ckpt_every: int = 2000
     progress: bool = True
+    # Decay of the exponential moving average of G's weights used for validation, evaluation and export; 0 = off.
+    ema: float = 0.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class PretrainedConfig:
     vgg16: str | None = None         # torchvision vgg16 state_dict (.pth)
     lpips_lin: str | None = None     # lpips v0.1 vgg linear layers (.pth)
@@ -100,7 +115,7 @@ class PretrainedConfig:
     inception: str | None = None     # torchvision inception_v3 state_dict (.pth), for SIFID
 
 
-@dataclass
+@dataclass(frozen=True)
 class RunConfig:
     method: str = "ours"
     preset: str = "paper"
@@ -113,58 +128,10 @@ class RunConfig:
     garment: str = ""                # garment folder (absolute path), filled by the CLI
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["optim"]["betas"] = list(d["optim"]["betas"])
-        return d
+        return loader.to_mapping(self)
 
     def dump(self, path: Path) -> None:
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
-
-
-def _coerce(value, typ, key: str):
-    typ_s = str(typ)
-    if value is None:
-        if "None" in typ_s:
-            return None
-        raise ConfigError(f"{key}: must not be empty")
-    try:
-        if typ in (int, "int"):
-            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
-                raise ValueError
-            return int(value)
-        if typ in (float, "float"):
-            return float(value)
-        if typ in (bool, "bool"):
-            if isinstance(value, str):
-                if value.lower() in ("true", "1", "yes"):
-                    return True
-                if value.lower() in ("false", "0", "no"):
-                    return False
-                raise ValueError
-            return bool(value)
-        if "tuple" in typ_s:
-            vals = [float(v) for v in (value.split(",") if isinstance(value, str) else value)]
-            if len(vals) != 2:
-                raise ValueError
-            return tuple(vals)
-        return str(value)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{key}: cannot read {value!r} as {typ_s}") from exc
-
-
-def _fill(obj, data: dict, prefix: str = "") -> None:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{prefix or 'config'}: expected a mapping; got {data!r}")
-    fields = {f.name: f for f in dataclasses.fields(obj)}
-    for key, value in data.items():
-        name = f"{prefix}{key}"
-        if key not in fields:
-            raise ConfigError(f"unknown config key {name!r}; known: {', '.join(fields)}")
-        cur = getattr(obj, key)
-        if dataclasses.is_dataclass(cur):
-            _fill(cur, value, f"{name}.")
-        else:
-            setattr(obj, key, _coerce(value, fields[key].type, name))
 
 
 def load_config(preset: str | Path = "paper", *, overrides: list[str] | None = None,
@@ -176,41 +143,26 @@ def load_config(preset: str | Path = "paper", *, overrides: list[str] | None = N
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")))
         raise ConfigError(f"no preset {preset!r} (known: {known}, or a path to a .yaml file)")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    cfg = RunConfig()
-    _fill(cfg, data)
-    if "preset" not in data:
-        cfg.preset = path.stem
-    for item in overrides or []:
-        if "=" not in item:
-            raise ConfigError(f"override {item!r} must be section.key=value")
-        key, value = item.split("=", 1)
-        parts = key.strip().split(".")
-        nested: dict = {}
-        cur = nested
-        for p in parts[:-1]:
-            cur = cur.setdefault(p, {})
-        cur[parts[-1]] = yaml.safe_load(value) if value.strip() else None
-        _fill(cfg, nested)
+    doc = loader.load_yaml(path, error=ConfigError, what="preset")
+    if "preset" not in doc:
+        doc["preset"] = path.stem
+    doc = loader.merge(doc, loader.parse_overrides(RunConfig, overrides or [], error=ConfigError))
     if method is not None:
-        cfg.method = method
+        doc["method"] = method
+    cfg = loader.build(RunConfig, doc, error=ConfigError, where=str(path))
     validate(cfg)
     return cfg
 
 
 def config_from_dict(data: dict) -> RunConfig:
-    cfg = RunConfig()
-    _fill(cfg, data)
-    return cfg
+    """A run's saved config (`RUN/config.yaml`, a checkpoint's `config`) read back."""
+    return loader.build(RunConfig, data, error=ConfigError)
 
 
 def validate(cfg: RunConfig) -> None:
-    if cfg.data.crop % 256:
-        raise ConfigError(f"data.crop must be a multiple of 256 (the generator has 8 stride-2 levels); "
-                          f"got {cfg.data.crop}")
+    if not is_grid(cfg.data.crop):
+        raise ConfigError(f"data.crop must be a multiple of {GRID_MULTIPLE} (the generator halves the grid eight "
+                          f"times); got {cfg.data.crop}")
     if cfg.data.patches < 1:
         raise ConfigError("data.patches must be >= 1")
     if cfg.train.steps < 1:
@@ -222,7 +174,18 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
     if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:
         raise ConfigError(f"loss.tactile_gan_ramp is a fraction of the schedule, 0..1; got {cfg.loss.tactile_gan_ramp}")
-    choices = {("data", "unpaired_sampling"): ("laplacian", "uniform"),
+    if not 0.0 <= cfg.optim.decay_from <= 1.0:
+        raise ConfigError(f"optim.decay_from is a fraction of the schedule, 0..1; got {cfg.optim.decay_from}")
+    if not (cfg.train.ema == 0.0 or 0.0 < cfg.train.ema < 1.0):
+        raise ConfigError(f"train.ema is a decay in (0, 1), or 0 for off; got {cfg.train.ema}")
+    if cfg.loss.tactile_texture < 0:
+        raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
+    try:
+        parse_policy(cfg.loss.diffaug)
+    except ValueError as exc:
+        raise ConfigError(f"loss.diffaug: {exc}") from exc
+    choices = {("optim", "lr_policy"): POLICIES,
+               ("data", "unpaired_sampling"): ("laplacian", "uniform"),
                ("loss", "tactile_d_visual"): ("generated", "real"),
                ("loss", "unpaired_contact"): ("borrowed", "object")}
     for (section, key), allowed in choices.items():

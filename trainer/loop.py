@@ -6,18 +6,23 @@ one (tests/trainer/test_loop.py checks this bit for bit under `torch.use_determi
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
+from trainer.progress import Progress
+from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.metrics import l1, psnr, tactile_patch_metrics
 from trainer.sampling import GarmentData, cut
 from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_uint8, friction_tile
@@ -38,15 +43,16 @@ class Trainer:
 
     def __init__(self, cfg: RunConfig, garment_dir: Path, out_dir: Path, *, resume: bool = False,
                  dist: Dist | None = None):
+        cfg = dataclasses.replace(cfg, garment=str(Path(garment_dir).resolve()))
         self.cfg = cfg
         self.out = Path(out_dir)
         self.dist = dist
         self.rank = dist.rank if dist else 0
         self.main = self.rank == 0
-        cfg.garment = str(Path(garment_dir).resolve())
         set_determinism(cfg)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
+        self.method.attach_ema(cfg.train.ema)
         self.val = self.data.eval_set("val")
         self.step = 0
         self.history: list[dict] = []
@@ -64,9 +70,10 @@ class Trainer:
     # --- state ----------------------------------------------------------------------------------------------
     def _payload(self) -> dict:
         m = self.method
-        return {"generator": m.generator.state_dict(), "generator_class": m.generator_class,
+        return {"generator": m.eval_generator.state_dict(), "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
+                "data_profile": self.data.g.profile, "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
                 "crop": self.data.side, "config": self.cfg.to_dict(),
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
@@ -91,7 +98,7 @@ class Trainer:
     # --- validation and pictures ----------------------------------------------------------------------------
     @torch.no_grad()
     def predict(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
-        g = self.method.generator
+        g = self.method.eval_generator
         was = g.training
         g.eval()
         out = g(batch.sketch, batch.mask)
@@ -124,28 +131,40 @@ class Trainer:
         save_png(path, grid([tiles]))
 
     # --- the loop -------------------------------------------------------------------------------------------
-    def run(self, until: int | None = None) -> dict:
+    def run(self, until: int | None = None, should_stop: Callable[[], bool] | None = None) -> dict:
+        """Train to `until` (default: the schedule's end). `should_stop()` is asked after every step (a signal
+        flag); when it says yes, the run saves its latest checkpoint at once so `--resume` continues from there."""
         t = self.cfg.train
         end = min(until if until is not None else t.steps, t.steps)
         bar = None
         if self.main and t.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}",
-                       dynamic_ncols=True)
+            bar = Progress(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}")
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
+        self.stopped = False
         while self.step < end:
+            if should_stop is not None and self._agree_to_stop(should_stop()):
+                self.stopped = True
+                self.train_seconds += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                self.save("latest")
+                log.info("stopped at step %d on request; --resume continues from there", self.step)
+                break
             batch = self.data.batch(self.step, self.rank)
+            o = self.cfg.optim
+            factor = lr_factor(o.lr_policy, self.step, t.steps, o.decay_from)
+            apply_lr(self.method.opts, factor)
             logs = self.method.step(batch, self.step)
+            self.method.after_step(self.step)
+            logs["lr_factor"] = factor
             self.step += 1
             if self.step % t.log_every == 0 or self.step == end:
                 if self.dist is not None:
                     logs = {k: average_scalar(x, self.dist.world) for k, x in logs.items()}
                 self.history.append({"step": self.step, **logs})
                 if bar is not None:
-                    bar.set_postfix({k: f"{x:.3g}" for k, x in logs.items() if k in
-                                     ("g_total", "v_l1", "t_l1", "t_gan", "d_visual", "d_tactile", "l1", "d")})
+                    bar.losses_seen(logs)
             if bar is not None:
                 bar.update(1)
             if self.step % t.val_every == 0 or self.step == end:
@@ -162,14 +181,22 @@ class Trainer:
             bar.close()
         self.train_seconds += time.perf_counter() - t0
         done = self.step - first
-        summary = {"method": self.cfg.method, "garment": self.data.g.name, "step": self.step,
+        summary = {"method": self.cfg.method, "garment": self.data.g.name, "data_profile": self.data.g.profile,
+                   "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0], "step": self.step,
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),
-                   "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best}
+                   "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best,
+                   "stopped_early": self.stopped}
         if self.main:
             (self.out / "metrics.json").write_text(json.dumps({"train": summary}, indent=2))
         return summary
+
+    def _agree_to_stop(self, mine: bool) -> bool:
+        """Under torchrun every rank must stop at the same step, or the others wait forever in a collective."""
+        if self.dist is None:
+            return mine
+        return average_scalar(float(mine), self.dist.world) > 0
 
     def _validate_and_keep_best(self) -> None:
         if not self.main:

@@ -25,7 +25,7 @@ import numpy as np
 
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
 from exporter.bench.sources import BenchError, Candidate, build_sources, torch_available
-from kiosk.bundle.manifest import GRAPH_OUTPUTS
+from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid, unpack
 
 PRECISIONS = ("fp32", "fp16", "int8")
 NOT_COMPUTE = {"AzureExecutionProvider"}  # a remote-call provider, not a place to run a graph
@@ -35,8 +35,8 @@ def _sizes(text: str) -> list[tuple[int, int]]:
     from exporter.cli import _sizes as parse
     out = parse(text)
     for w, h in out:
-        if w % 256 or h % 256 or w < 256 or h < 256:
-            raise argparse.ArgumentTypeError(f"sizes must be multiples of 256; got {w}x{h}")
+        if not (is_grid(w) and is_grid(h)):
+            raise argparse.ArgumentTypeError(f"sizes must be multiples of {GRID_MULTIPLE}; got {w}x{h}")
     return out
 
 
@@ -131,7 +131,7 @@ class _TorchSession:
 
     def run(self, names, feed):
         with self._torch.inference_mode():
-            out = self._module(self._torch.from_numpy(feed["sketch"]), self._torch.from_numpy(feed["mask"]))
+            out = self._module(*(self._torch.from_numpy(a) for a in unpack(feed)))
         out = dict(zip(self._outputs, out if isinstance(out, tuple) else (out,)))
         return [out[n].numpy() for n in names]
 
@@ -282,10 +282,12 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                         else:
                             test = _session(c.path, c.provider, args.threads)
                         if ref_out is not None:
-                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale))
+                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale,
+                                                       normalization=m.friction_normalization,
+                                                       constants=m.friction_constants or None))
                         if truth is not None and "tactile" in outputs:
                             from exporter.bench.truth import field_errors
-                            feed = {"sketch": truth.input.sketch, "mask": truth.input.mask}
+                            feed = feeds(truth.input.sketch, truth.input.mask)
                             tac = test.run(["tactile"], feed)[0]
                             row.update(field_errors(tac, truth, m.friction_scale))
                         rows.append(row)

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kiosk.contract.graph import feeds
+
 DEFAULT_VARIANTS = ("minmax:", "minmax:pe", "minmax:pe,heads", "minmax:pe,first-conv,heads",
                     "entropy:pe,first-conv,heads", "percentile:pe,heads", "percentile:pe,first-conv,heads",
                     "percentile:pe,first-conv,heads,tactile-branch")
@@ -45,8 +47,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 def _timings(paths: dict[str, Path], size: int, rounds: int, threads: int) -> dict[str, float]:
     from exporter.graphs import ort_session
     rng = np.random.default_rng(0)
-    feed = {"sketch": np.where(rng.random((1, 1, size, size)) < 0.05, -1.0, 1.0).astype(np.float32),
-            "mask": np.ones((1, 1, size, size), np.float32)}
+    feed = feeds(np.where(rng.random((1, 1, size, size)) < 0.05, -1.0, 1.0).astype(np.float32),
+                 np.ones((1, 1, size, size), np.float32))
     sessions = {k: ort_session(p, threads=threads) for k, p in paths.items()}
     for s in sessions.values():
         s.run(None, feed)
@@ -68,7 +70,7 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
     from exporter.export import _reference_assets, rewrites_conv_transpose
     from exporter.graphs import export_graph, ort_session
     from exporter.quantize import quantize_int8
-    from kiosk.bundle.manifest import GRAPH_OUTPUTS
+    from kiosk.contract.graph import GRAPH_OUTPUTS
     from trainer.checkpoint import load_generator
 
     generator, info = load_generator(args.run, args.which)

@@ -1,4 +1,4 @@
-"""The benchmark's table and its verdict on the issue's goals (pure functions of the result rows)."""
+"""The benchmark's table and its verdict on the speed and error goals (pure functions of the result rows)."""
 from __future__ import annotations
 
 GOAL_SIZE = (1536, 1536)
@@ -36,7 +36,7 @@ def markdown_table(rows: list[dict]) -> str:
 
 
 def goals(rows: list[dict], default_precision: dict[str, str]) -> list[dict]:
-    """Each goal of the issue at the bundle's (default) precision: value, target, met (None = not measured)."""
+    """Each goal (docs/performance.md) at the bundle's (default) precision: value, target, met (None = not measured)."""
     own = [r for r in rows if r["provider"] != "torch-eager" and r["source"] == "bundle"
            and r["precision"] == default_precision.get(r["graph"])]
     cpu = [r for r in own if r["provider"] == "CPUExecutionProvider"]

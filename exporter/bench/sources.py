@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from kiosk.bundle.archive import Bundle, sha256_file
-from kiosk.contract.errors import KioskError
+from exporter.errors import ExportError
 
 
-class BenchError(KioskError):
+class BenchError(ExportError):
     """A benchmark that cannot run as asked; the message says what to give instead."""
 
 

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kiosk.contract.graph import feeds, unpack
+
 
 def _rss_mb(field: str = "VmHWM") -> float:
     """Peak (VmHWM) or current (VmRSS) resident set of this process in MiB (Linux /proc; ru_maxrss elsewhere)."""
@@ -66,7 +68,7 @@ def _torch_runner(spec: dict, feed: dict):
     torch.set_num_threads(int(spec["threads"]))
     generator, _ = load_generator(Path(spec["run"]), spec.get("which", "best"))
     module = eager_module(generator, spec["graph"])
-    x = torch.from_numpy(feed["sketch"]), torch.from_numpy(feed["mask"])
+    x = tuple(torch.from_numpy(a) for a in unpack(feed))
 
     def run():
         with torch.inference_mode():
@@ -76,7 +78,7 @@ def _torch_runner(spec: dict, feed: dict):
 
 def measure(spec: dict) -> dict:
     with np.load(spec["input"]) as z:
-        feed = {"sketch": z["sketch"], "mask": z["mask"]}
+        feed = feeds(*unpack(z))
     if spec["kind"] == "torch":
         import torch  # noqa: F401 - imported before the baseline so the baseline includes the framework
     else:

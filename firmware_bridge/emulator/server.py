@@ -11,6 +11,7 @@ import selectors
 import socket
 import struct
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 from .link import DeviceGone
@@ -69,14 +70,15 @@ class EmulatorServer:
     def stop(self) -> None:
         self._stop.set()
 
-    def serve_forever(self, poll_s: float = 0.001) -> None:
+    def serve_forever(self, poll_s: float = 0.001, should_stop: Callable[[], bool] | None = None) -> None:
+        """Serve until `stop()` or `should_stop()` (polled every few milliseconds, e.g. a signal flag)."""
         if self._sock is None:
             self.start()
         sel = selectors.DefaultSelector()
         sel.register(self._sock, selectors.EVENT_READ)
         client: ReportStream | None = None
         try:
-            while not self._stop.is_set():
+            while not self._stop.is_set() and not (should_stop is not None and should_stop()):
                 for key, _ in sel.select(timeout=poll_s if client else 0.05):
                     if key.fileobj is self._sock:
                         conn, _ = self._sock.accept()

@@ -66,10 +66,6 @@ class Transport(ABC):
     def recv(self, timeout_s: float) -> bytes | None:
         """One complete message within timeout_s, or None. Raises LinkError on I/O failure."""
 
-    def describe(self) -> str:
-        c = self.config
-        return f"{self.name} {c.vid:04x}:{c.pid:04x} report {self.report_size} B"
-
 
 class ReportTransport(Transport):
     """Framing and the receive loop over `_write_report` / `_read_report`."""

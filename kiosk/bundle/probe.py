@@ -12,9 +12,8 @@ import onnxruntime as ort
 
 from kiosk.bundle.archive import Bundle
 from kiosk.bundle.manifest import BundleError
+from kiosk.contract.graph import INPUT_NAMES, OUTPUT_CHANNELS, feeds
 from kiosk.contract.sketch import letterbox, network_input, object_mask
-
-OUTPUT_CHANNELS = {"visual": 3, "tactile": 2}
 
 
 @dataclass(frozen=True)
@@ -28,7 +27,7 @@ class ProbeResult:
 
 def session_options(threads: int, *, spinning: bool = False) -> ort.SessionOptions:
     """The kiosk's ONNX Runtime settings. Idle intra-op threads sleep rather than spin by default: the HTTP and haptic
-    threads share the cores, and spinning made a 256 px full-graph run 26 ms instead of 8 ms on a loaded 2-core box."""
+    threads share the cores, and a spinning pool takes the CPU they need (docs/performance.md, thread spinning)."""
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1
@@ -53,10 +52,10 @@ def probe_bundle(bundle: Bundle, *, threads: int = 2, providers: list[str] | Non
             raise BundleError(f"graph {spec.file} does not load in ONNX Runtime: {exc}") from exc
         t1 = time.perf_counter()
         names = {i.name for i in sess.get_inputs()}
-        if names != {"sketch", "mask"}:
-            raise BundleError(f"graph {spec.file} takes inputs {sorted(names)}; expected ['mask', 'sketch']")
+        if names != set(INPUT_NAMES):
+            raise BundleError(f"graph {spec.file} takes inputs {sorted(names)}; expected {sorted(INPUT_NAMES)}")
         try:
-            outs = sess.run(spec.outputs, {"sketch": x.sketch, "mask": x.mask})
+            outs = sess.run(spec.outputs, feeds(x.sketch, x.mask))
         except Exception as exc:  # noqa: BLE001
             raise BundleError(f"graph {spec.file} failed on a {w}x{h} probe sketch: {exc}") from exc
         t2 = time.perf_counter()

@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
-import threading
 from pathlib import Path
 
 from kiosk.ops.logsetup import configure_logging, say_line
+from kiosk.ops.signals import on_signals
 
 log = logging.getLogger("vtkiosk.serve")
 
@@ -61,39 +61,20 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
 
 def run(daemon, *, exit_after_ready: bool = False, out=say_line) -> int:
     """Start `daemon`, print its URL, and serve until SIGTERM/SIGINT; SIGHUP reloads."""
-    stop = threading.Event()
-    reload_wanted = threading.Event()
-    wake = threading.Event()
-
-    def on_stop(signum, frame):
-        stop.set()
-        wake.set()
-
-    def on_hup(signum, frame):
-        reload_wanted.set()
-        wake.set()
-
-    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
-    signal.signal(signal.SIGTERM, on_stop)
-    signal.signal(signal.SIGINT, on_stop)
-    signal.signal(signal.SIGHUP, on_hup)
-    try:
-        daemon.start()
-        out(f"kiosk serving {', '.join(sorted(daemon.bundles))} at {daemon.server.url}")
-        if exit_after_ready:
+    with on_signals(signal.SIGHUP) as signals:
+        try:
+            daemon.start()
+            out(f"kiosk serving {', '.join(sorted(daemon.bundles))} at {daemon.server.url}")
+            if exit_after_ready:
+                return 0
+            while not signals.stop:
+                signals.wait(1.0)
+                if signals.take(signal.SIGHUP) and not signals.stop:
+                    report = daemon.reload()
+                    log.info("SIGHUP reload: serving %s", report.get("serving"))
             return 0
-        while not stop.is_set():
-            wake.wait(1.0)
-            wake.clear()
-            if reload_wanted.is_set():
-                reload_wanted.clear()
-                report = daemon.reload()
-                log.info("SIGHUP reload: serving %s", report.get("serving"))
-        return 0
-    finally:
-        daemon.stop()
-        for s, h in previous.items():
-            signal.signal(s, h)
+        finally:
+            daemon.stop()
 
 
 def main(argv: list[str], prog: str = "vtkiosk serve") -> int:

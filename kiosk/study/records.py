@@ -1,6 +1,6 @@
 """The payloads of the study log's records, built in one place so the service, the tests and the readers agree.
 
-A `response` record holds everything issue 7 asks for in one line: study id, participant code, session, trial
+A `response` record holds everything an analysis or an audit of one trial needs, in one line: study id, participant code, session, trial
 index, garment (and the half shown), the two conditions and their sides, the choice, the response time, the timeout
 flag, both bundles' versions and manifest hashes, the software version, and monotonic + wall timestamps (with the
 boot id that makes the monotonic clock comparable).

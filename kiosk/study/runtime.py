@@ -14,19 +14,20 @@ output into friction maps and puts them on the haptic device. Study mode changes
 from __future__ import annotations
 
 import faulthandler
-import signal
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from kiosk.contract import yamlload
 from kiosk.service.config import KioskConfig, config_from_mapping
 from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
+from kiosk.ops.health import storage_check
 from kiosk.ops.logsetup import configure_logging, say_line
 from kiosk.inference.render import Texture
+from kiosk.ops.signals import on_signals
 from kiosk.inference.scene import Panel, Scene, SketchInput
 from kiosk.study.bundles import StudyBundle, StudyBundles, open_study_bundles
 from kiosk.study.config import StudyConfig, StudyConfigError, load_study_config
@@ -178,11 +179,11 @@ def _kiosk_doc(config: StudyConfig) -> tuple[dict, Path]:
         return dict(config.kiosk), config.base_dir
     path = Path(config.kiosk)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yamlload.safe_load(path.read_text())
     except OSError as exc:
         raise StudyConfigError(f"cannot read the study's kiosk config {path}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise StudyConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
     if not isinstance(doc, dict):
         raise StudyConfigError(f"{path}: the kiosk config must be a mapping")
     ctl = doc.get("control")
@@ -233,6 +234,7 @@ class StudyRuntime:
             self.daemon.server.route("GET", "/api/study/", self.service.http_get)
             self.daemon.server.route("POST", "/api/study/", self.service.http_post)
             self.daemon.add_control_handler("study.", self.service.control)
+            self.daemon.add_health_check("study_log", storage_check(config.log, self.service.log_error))
             self.service.start_timer()
         except BaseException:
             self.close()
@@ -257,29 +259,25 @@ def run_study(config_path: Path, *, port: int | None = None, control_socket: Pat
     config = load_study_config(config_path)
     configure_logging(level="INFO")   # the journal under systemd, else stderr
     runtime = StudyRuntime(config, port=port, control_socket=control_socket, device=device)
-    # The handler only appends to a list: a handler that takes a lock (Event.set) can deadlock against the main
-    # thread if the signal lands while that thread holds the same lock, and the stop would then never start.
-    stop_signal: list[int] = []
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda signum, _frame: stop_signal.append(signum))
-    assert runtime.service is not None and runtime.daemon is not None
-    say_line(f"study {config.id}: page {runtime.url}")
-    say_line(f"study {config.id}: control socket {runtime.daemon.config.control.socket}")
-    say_line(f"study {config.id}: log {config.log}")
-    active = runtime.service.status().get("active")
-    if active:
-        say_line(f"study {config.id}: resumed {active['participant']} session {active['session']} at trial "
-                 f"{active['trial']}")
-    try:
-        while not stop_signal:
-            time.sleep(0.2)
-    finally:
-        # A shutdown that stalls leaves every thread's stack on stderr (the journal) instead of a silent hang.
-        faulthandler.dump_traceback_later(SHUTDOWN_STACKS_AFTER_S, exit=False, file=sys.stderr)
+    with on_signals() as signals:
+        assert runtime.service is not None and runtime.daemon is not None
+        say_line(f"study {config.id}: page {runtime.url}")
+        say_line(f"study {config.id}: control socket {runtime.daemon.config.control.socket}")
+        say_line(f"study {config.id}: log {config.log}")
+        active = runtime.service.status().get("active")
+        if active:
+            say_line(f"study {config.id}: resumed {active['participant']} session {active['session']} at trial "
+                     f"{active['trial']}")
         try:
-            runtime.close()
+            while not signals.stop:
+                signals.wait(1.0)
         finally:
-            faulthandler.cancel_dump_traceback_later()
+            # A shutdown that stalls leaves every thread's stack on stderr (the journal) instead of a silent hang.
+            faulthandler.dump_traceback_later(SHUTDOWN_STACKS_AFTER_S, exit=False, file=sys.stderr)
+            try:
+                runtime.close()
+            finally:
+                faulthandler.cancel_dump_traceback_later()
     print(f"study {config.id}: stopped", file=sys.stderr, flush=True)
     return 0
 

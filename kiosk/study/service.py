@@ -22,6 +22,11 @@ a tap with no session running. Codes that the study does not accept are refused 
 that is not a code). After a crash the most recent unfinished session is resumed at its first unanswered trial
 (logged as a `resume` record); trials answered before the crash are never asked again. A withdrawn participant's
 session ends at once; the report leaves them out and the log keeps every record.
+
+When the log cannot be written (a full disk), nothing is acknowledged: the page is told to ask the participant to
+call the researcher, the kiosk log and the `study_log` health check say why, and the trial clock stops. The timer
+retries once a second; the first record that goes through again is an event saying how long the log was down, and
+the current stage is presented afresh (a new token, as after a restart), all without restarting the kiosk.
 """
 from __future__ import annotations
 
@@ -40,7 +45,7 @@ from kiosk.inference.scene import Panel, Scene
 from kiosk.study.bundles import StudyBundles
 from kiosk.study.config import CODE_RE, ParticipantError, StudyConfig
 from kiosk.study.familiarise import texture_pixels
-from kiosk.study.log import DuplicateResponse, StudyLog
+from kiosk.study.log import DuplicateResponse, StudyLog, StudyLogWriteError
 from kiosk.study.records import response_payload, session_payload
 from kiosk.study.schedule import SIDES, Schedule, Trial, make_schedule
 
@@ -49,6 +54,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+CALL_RESEARCHER = "Please call the researcher: the kiosk cannot record answers right now."
+RETRY_S = 1.0             # how often a study log that refused a write is tried again
 GAP_FRACTION = 0.02       # gap between the two panels, of the screen width
 BAR_FRACTION = 0.16       # the button bar at the bottom, of the screen height
 QUESTION_FRACTION = 0.12  # the question band at the top, of the screen height (the question never covers a panel)
@@ -157,6 +164,8 @@ class StudyService:
         self._stop = threading.Event()
         self._tick_s = tick_s
         self._thread: threading.Thread | None = None
+        self._outage: dict | None = None   # the study log refused a write: {"error", "wall", "mono"}
+        self._next_retry = 0.0
         if auto_resume:
             self._resume_after_restart()
 
@@ -174,9 +183,57 @@ class StudyService:
     def _timer(self) -> None:
         while not self._stop.wait(self._tick_s):
             try:
-                self.check_timeout()
+                if self._outage is not None:
+                    self.retry_log()
+                else:
+                    self.check_timeout()
+            except StudyLogWriteError as exc:
+                with self._lock:
+                    self._log_down(exc)
             except Exception:  # noqa: BLE001 - the timer must survive anything; the log says what happened
                 log.exception("study timer")
+
+    # -- a study log that refuses writes ---------------------------------------------------------------------------
+    def _log_down(self, exc: StudyLogWriteError) -> None:
+        """Called with the lock held: stop the trial (clock and taps) until the log takes a record again."""
+        if self._outage is None:
+            self._outage = {"error": str(exc), "wall": self.log.stamp()["wall"], "mono": time.monotonic()}
+            log.error("study %s: %s; the page asks the participant to call the researcher, and recording resumes "
+                      "by itself once the log can be written", self.config.id, exc)
+            if self._active is not None:
+                self._active.deadline = None
+        self._next_retry = time.monotonic() + RETRY_S
+
+    def log_error(self) -> str | None:
+        """Why the study log cannot take records now (None while it can): for the health check."""
+        outage = self._outage
+        return None if outage is None else f"{outage['error']} (since {outage['wall'][:19]}Z)"
+
+    def retry_log(self, *, force: bool = False) -> bool:
+        """Try the study log again (at most every RETRY_S unless `force`); True once it takes a record."""
+        with self._lock:
+            if self._outage is None:
+                return True
+            if not force and time.monotonic() < self._next_retry:
+                return False
+            outage = self._outage
+            try:
+                self.log.append("event", kind="log_write_failed", detail=outage["error"][:300],
+                                since=outage["wall"], down_s=round(time.monotonic() - outage["mono"], 3),
+                                **self.log.stamp())
+            except StudyLogWriteError as exc:
+                self._log_down(exc)
+                return False
+            self._outage = None
+            log.warning("study %s: the study log takes records again after %.0f s; recording resumes",
+                        self.config.id, time.monotonic() - outage["mono"])
+            if self._active is not None:
+                try:
+                    self._advance()   # a fresh token and clock for the stage that was cut off
+                except StudyLogWriteError as exc:
+                    self._log_down(exc)
+                    return False
+            return True
 
     # -- operator ------------------------------------------------------------------------------------------------
     def start(self, participant: object, *, new_session: bool = False) -> dict:
@@ -289,6 +346,7 @@ class StudyService:
             out = {"study_id": self.config.id, "kind": self.config.kind, "log": str(self.log.path),
                    "sessions": len(self.log.state.sessions), "responses": len(self.log.state.responses()),
                    "withdrawn": sorted(self.log.state.withdrawn), "active": None, "counts": None,
+                   "log_error": self.log_error(),
                    "participants_done": sorted({p for (p, _), s in self.log.state.sessions.items()
                                                 if s.next_trial() is None and p not in self.log.state.withdrawn})}
             if self._active is not None:
@@ -348,8 +406,12 @@ class StudyService:
             self._event("resume_impossible", participant=s.participant, session=s.session, detail=str(exc))
             return
         self._active = _Active(schedule)
-        self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
-                        at_trial=s.next_trial(), **self.log.stamp())
+        try:
+            self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
+                            at_trial=s.next_trial(), **self.log.stamp())
+        except StudyLogWriteError as exc:   # started on a full disk: wait for space like a running study does
+            self._log_down(exc)
+            return
         self._advance()
 
     def _check_resumable(self, started: dict, schedule: Schedule) -> None:
@@ -457,6 +519,8 @@ class StudyService:
 
     def page_state(self) -> dict:
         with self._lock:
+            if self._outage is not None:
+                return {"state": "call_researcher", "notice": CALL_RESEARCHER}
             a = self._active
             if a is None:
                 if self._finished is not None:
@@ -627,13 +691,16 @@ class StudyService:
                 return self._ignore("double_tap", participant=a.key[0], session=a.key[1], trial=a.trial.index,
                                     side=side)
             self._remember(a.token, a.key, a.trial.index, "answered")
-            self._advance()
+            try:
+                self._advance()
+            except StudyLogWriteError as exc:   # the choice is durable; only what follows it waits for space
+                self._log_down(exc)
             return {"recorded": True, "trial": rec["trial"], "side": side, "seq": rec["seq"]}
 
     def check_timeout(self) -> None:
         with self._lock:
             a = self._active
-            if a is None:
+            if a is None or self._outage is not None:
                 return
             now = time.monotonic()
             if a.stage == "trial" and a.deadline is not None and now >= a.deadline:
@@ -713,30 +780,50 @@ class StudyService:
         body = req.json()
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
-        if req.path == "/api/study/shown":
-            _only(body, {"token", "page"})
-            return Response.json(self.shown(body.get("token"), body.get("page")))
-        if req.path == "/api/study/choice":
-            _only(body, {"token", "side", "page"})
-            return Response.json(self.choose(body.get("token"), body.get("side")))
-        if req.path == "/api/study/consent":
-            _only(body, {"token", "agreed", "version"})
-            return Response.json(self.consent(body.get("token"), body.get("agreed"), body.get("version")))
-        if req.path == "/api/study/demographics":
-            _only(body, {"token", "answers"})
-            return Response.json(self.demographics(body.get("token"), body.get("answers")))
-        if req.path == "/api/study/familiarised":
-            _only(body, {"token"})
-            return Response.json(self.familiarised(body.get("token")))
+        if req.path in _PARTICIPANT_POSTS:
+            unavailable = Response.json({"recorded": False, "error": "the study log cannot be written; nothing was "
+                                         "recorded", "notice": CALL_RESEARCHER}, 503)
+            if self._outage is not None:
+                return unavailable
+            try:
+                return self._participant_post(req.path, body)
+            except StudyLogWriteError as exc:
+                with self._lock:
+                    self._log_down(exc)
+                return unavailable
         if req.path in ("/api/study/release", "/api/study/operator/next"):
             _loopback_only(req)
             _only(body, set())
             try:
                 return Response.json({"ok": True, **self.release(by="key" if req.path.endswith("release")
                                                                   else "operator page")})
+            except StudyLogWriteError as exc:
+                with self._lock:
+                    self._log_down(exc)
+                return Response.json({"ok": False, "error": str(exc)})
             except StudyError as exc:
                 return Response.json({"ok": False, "error": str(exc)})
         return Response.error(404, f"nothing at {req.path}")
+
+    def _participant_post(self, path: str, body: dict) -> "Response":
+        from kiosk.service.server import Response
+
+        if path == "/api/study/shown":
+            _only(body, {"token", "page"})
+            return Response.json(self.shown(body.get("token"), body.get("page")))
+        if path == "/api/study/choice":
+            _only(body, {"token", "side", "page"})
+            return Response.json(self.choose(body.get("token"), body.get("side")))
+        if path == "/api/study/consent":
+            _only(body, {"token", "agreed", "version"})
+            return Response.json(self.consent(body.get("token"), body.get("agreed"), body.get("version")))
+        if path == "/api/study/demographics":
+            _only(body, {"token", "answers"})
+            return Response.json(self.demographics(body.get("token"), body.get("answers")))
+        if path == "/api/study/familiarised":
+            _only(body, {"token"})
+            return Response.json(self.familiarised(body.get("token")))
+        raise AssertionError(f"not a participant request: {path}")
 
     def control(self, request: dict) -> dict:
         """Control-socket ops: study.start {participant, new_session}, study.status {counts}, study.stop,
@@ -756,12 +843,18 @@ class StudyService:
                 return {"ok": True, **self.skip_familiarisation()}
             if op == "study.withdraw":
                 return {"ok": True, **self.withdraw(request.get("participant"))}
+        except StudyLogWriteError as exc:
+            with self._lock:
+                self._log_down(exc)
+            return {"ok": False, "error": str(exc)}
         except KioskError as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown study op {op!r} (study.start, study.status, study.stop, study.next, "
                                      "study.skip, study.withdraw)"}
 
 
+_PARTICIPANT_POSTS = ("/api/study/shown", "/api/study/choice", "/api/study/consent", "/api/study/demographics",
+                      "/api/study/familiarised")
 _VISUAL_RE = re.compile(r"/api/study/visual/([a-z0-9][a-z0-9._-]{0,63})\.png")
 _IMAGE_RE = re.compile(r"/api/study/image/([0-9a-z-]{1,64})/(left|right)\.png")
 _TEXTURE_RE = re.compile(r"/api/study/texture/([0-9a-z-]{1,64})\.png")

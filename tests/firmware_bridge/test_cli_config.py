@@ -59,16 +59,16 @@ def test_config_from_mapping_with_hex_ids_and_nested_emulator(tmp_path):
 
 
 @pytest.mark.parametrize("data, match", [
-    ({"typo": 1}, r"unknown bridge key\(s\) \['typo'\]"),
+    ({"typo": 1}, r"unknown key\(s\): typo"),
     ({"type": "serial"}, "type must be one of"),
     ({"vid": 0x10000}, "16-bit"),
     ({"vid": "zz"}, "hex string"),
-    ({"window": "8"}, "window must be int"),
-    ({"max_retries": True}, "max_retries must be int"),
+    ({"window": "8"}, "window must be an integer"),
+    ({"max_retries": True}, "max_retries must be an integer"),
     ({"compression": "lz4"}, "compression"),
     ({"emulator": {"faults": {"drop": 2}}}, r"faults.drop is a probability"),
     ({"emulator": {"firmware": "1.2"}}, "firmware"),
-    ({"emulator": {"bogus": 1}}, r"unknown emulator\.key"),
+    ({"emulator": {"bogus": 1}}, r"unknown key\(s\) in emulator: bogus"),
 ])
 def test_config_errors_name_the_key(data, match):
     with pytest.raises(ConfigError, match=match):

@@ -34,3 +34,18 @@ def test_overrides_are_typed_and_unknown_keys_fail():
         load_config("cpu", overrides=["data.crop=300"])
     with pytest.raises(ConfigError, match="no preset"):
         load_config("gpu-fast")
+
+
+def test_config_is_frozen_and_overrides_take_the_fields_type():
+    import dataclasses
+
+    cfg = load_config("tiny", overrides=["optim.betas=0.5,0.9", "train.deterministic=true", "model.d_norm=instance",
+                                         "pretrained.vgg16=none", "optim.lr=2e-4"])
+    assert cfg.optim.betas == (0.5, 0.9) and cfg.train.deterministic is True and cfg.model.d_norm == "instance"
+    assert cfg.pretrained.vgg16 is None and cfg.optim.lr == 2e-4
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.train.steps = 3
+    with pytest.raises(ConfigError, match="train.deterministic must be true or false"):
+        load_config("tiny", overrides=["train.deterministic=maybe"])
+    with pytest.raises(ConfigError, match="optim.betas must be a list"):
+        load_config("tiny", overrides=["optim.betas=0.5"])

@@ -195,3 +195,37 @@ def test_compare_table_shows_mean_and_spread_over_runs():
     md, data = table(rs)
     assert "| ours | 1 | 3 | **9** ± 1 |" in md and "| pix2pix | 1 | 1 | 9.5 |" in md
     assert data["sd"]["ours"]["tactile_angle_deg"] == pytest.approx(1.0) and data["sd"]["pix2pix"] == {}
+
+
+def test_sigterm_during_training_saves_a_checkpoint_and_exits_unfinished(synth, tmp_path):
+    import re
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    run = tmp_path / "run"
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-m", "vtkiosk", "train", "--data", str(synth), "--garment", "DenimShorts",
+                             "--preset", "tiny", "--steps", "100000", "--set", "train.ckpt_every=1",
+                             "--set", "train.val_every=100000", "--set", "train.sample_every=100000",
+                             "--set", "train.progress=false", "--set", "train.threads=1", "--out", str(run)],
+                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        deadline = time.monotonic() + 120
+        while not (run / "checkpoints" / "latest.pt").exists() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    step = int(re.search(r"stopped by signal at step (\d+); continue with --resume", err).group(1))
+    _, info = load_generator(run, "latest")
+    assert 1 <= step < 100000 and info["step"] == step
+    assert json.loads((run / "metrics.json").read_text())["train"]["stopped_early"] is True

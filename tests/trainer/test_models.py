@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from trainer.models.discriminators import MultiScaleD
-from trainer.models.generator import SingleOutput, TwoBranchUNet
+from trainer.models.generator import GraphModule, TwoBranchUNet
 from trainer.models.pix2pix_generator import ResnetGenerator
 from trainer.models.posenc import positional_encoding
 
@@ -64,11 +64,12 @@ def test_single_branch_graphs_equal_combined_forward():
     s = torch.rand(1, 1, 256, 256) * 2 - 1
     m = torch.ones_like(s)
     v, t = g(s, m)
-    assert torch.allclose(SingleOutput(g, output="visual")(s, m), v)
-    assert torch.allclose(SingleOutput(g, output="tactile")(s, m), t)
-    gv = TwoBranchUNet(outputs="tactile")
-    gv.load_state_dict(g.state_dict())
-    assert torch.allclose(gv.eval()(s, m), t)
+    assert torch.equal(g(s, m, "visual"), v) and torch.equal(g(s, m, "tactile"), t)
+    assert torch.equal(GraphModule(g, "visual")(s, m), v) and torch.equal(GraphModule(g, "tactile")(s, m), t)
+    full = GraphModule(g, "full")(s, m)
+    assert torch.equal(full[0], v) and torch.equal(full[1], t)
+    with pytest.raises(AssertionError, match="kind must be one of"):
+        GraphModule(g, "both")
 
 
 def test_bottleneck_at_256_is_not_degenerate():
@@ -94,7 +95,7 @@ def test_pix2pix_generator_same_interface():
     m = torch.ones_like(s)
     v, t = g(s, m)
     assert v.shape == (3, 3, 32, 32) and t.shape == (3, 2, 32, 32)
-    assert torch.allclose(g.forward_tactile(s, m), t)
+    assert torch.equal(g(s, m, "tactile"), t) and torch.equal(g(s, m, "visual"), v)
 
 
 def test_tactile_discriminator_handles_32px_patches_at_every_scale():
@@ -110,12 +111,12 @@ def test_tactile_graph_exports_to_onnx_with_dynamic_size(tmp_path):
     g = TwoBranchUNet().eval()
     s = torch.zeros(1, 1, 256, 256)
     path = tmp_path / "tactile.onnx"
-    torch.onnx.export(SingleOutput(g, output="tactile"), (s, torch.ones_like(s)), str(path),
+    torch.onnx.export(GraphModule(g, "tactile"), (s, torch.ones_like(s)), str(path),
                       input_names=["sketch", "mask"], output_names=["tactile"], dynamo=False,
                       dynamic_axes={"sketch": {2: "h", 3: "w"}, "mask": {2: "h", 3: "w"}})
     s2 = torch.rand(1, 1, 512, 256) * 2 - 1
     m2 = torch.ones_like(s2)
     out = ort.InferenceSession(str(path)).run(None, {"sketch": s2.numpy(), "mask": m2.numpy()})[0]
     with torch.no_grad():
-        want = g.forward_tactile(s2, m2).numpy()
+        want = g(s2, m2, "tactile").numpy()
     assert out.shape == (1, 2, 512, 256) and abs(out - want).max() < 1e-4

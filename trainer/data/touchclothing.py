@@ -2,8 +2,8 @@
 
 One folder per garment, `singleskit_<Material>_padded_<P>_x<k>/`, with `trainS trainI trainM trainT valT testS testI
 testM testT`. Images are stored padded to P x P with the camera frame centred; tactile touches are `*_tactile.npz`
-files whose sensor rectangle is given in unpadded camera pixels. The facts are in shared/reference-notes.md; this
-module is the only place that knows them.
+files whose sensor rectangle is given in unpadded camera pixels. The layout is the published dataset's; this
+module is the only place that knows it.
 
 Synthetic garments add `synthetic.yaml` (frame size and offsets when the frame is not the published 1280x960) and
 `fullT/*_full_tactile.npz` (gradients over the whole garment), which the real data lacks.
@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import yaml
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 from kiosk.contract.haptics import calibrate_scale
 
 PUBLISHED_FRAME = (1280, 960)  # camera frame (width, height)
@@ -31,7 +31,7 @@ TACTILE_KEYS = ("gx_raw", "gy_raw", "vision_mask_x", "vision_mask_y", "vision_ma
 FOLDER_RE = re.compile(r"^singleskit_(?P<material>.+?)_padded_(?P<padded>\d+)_x(?P<mult>\d+)$")
 
 
-class DatasetError(KioskError):
+class DatasetError(TrainerError):
     """A garment folder that does not follow the layout; the message names the folder and what is missing."""
 
 
@@ -95,6 +95,20 @@ class Garment:
     @property
     def name(self) -> str:
         return self.root.name
+
+    @property
+    def profile(self) -> str:
+        """Which data this is: "real" (no synthetic.yaml), or the synthetic profile ("easy" when the file names none:
+        the generator before profiles)."""
+        if not (self.root / "synthetic.yaml").is_file():
+            return "real"
+        return str(self.meta.get("profile", "easy"))
+
+    @property
+    def pixel_pitch_mm(self) -> float | None:
+        """mm per padded-frame pixel, when the garment states it (synthetic.yaml); None for real data."""
+        v = self.meta.get("pixel_pitch_mm")
+        return float(v) if v is not None else None
 
     def touch_count(self) -> dict[str, int]:
         return {s: len(self.touches.get(s, [])) for s in SPLITS}

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import importlib
 
-from kiosk.contract.errors import KioskError
+from trainer.errors import TrainerError
 
 METHODS: dict[str, str] = {
     "ours": "trainer.methods.ours:Ours",
@@ -17,7 +17,7 @@ METHODS: dict[str, str] = {
 }
 
 
-class UnknownMethod(KioskError):
+class UnknownMethod(TrainerError):
     pass
 
 

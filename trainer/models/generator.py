@@ -6,7 +6,7 @@ Down: LeakyReLU(0.2) -> conv -> InstanceNorm (affine off); the outermost down ha
 innermost no norm (pix2pix convention) - which is also what keeps a 256 px input valid: the 8th down reaches 1x1,
 where an InstanceNorm would zero everything, and it has none. Up: ReLU -> transposed conv -> InstanceNorm.
 Decoder up7..up4 are shared; up3..up0 exist once per branch. Every up layer except the innermost (up7) and the
-outermost (up0) takes the encoder skip of its level, concatenated (reference-notes: the outermost takes no skip).
+outermost (up0) takes the encoder skip of its level, concatenated (as in the authors' code: the outermost takes no skip).
 Outputs: tanh, multiplied by the mask. About 1.47 M parameters.
 
 Input: the masked sketch (N, 1, H, W) in [-1, 1] and the mask (N, 1, H, W) in {0, 1}, exactly the two tensors of
@@ -19,9 +19,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from trainer.models.posenc import positional_encoding
-
-MULTIPLE = 256  # 8 stride-2 levels
+from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE
+from trainer.models.posenc import masked_input
 
 
 @dataclass
@@ -75,18 +74,17 @@ class Branch(nn.Module):
 class TwoBranchUNet(nn.Module):
     """Sketch (+ mask) -> (visual RGB, tactile gx gy), both tanh x mask.
 
-    `outputs` picks what `forward` returns and computes: "both" -> (visual, tactile); "visual" or "tactile" -> that
-    single tensor, skipping the other branch (for exporting separate graphs). The state_dict is the same for all.
+    `forward(sketch, mask, kind)` is the one way to pick branches: `kind` is a graph kind of the runtime contract
+    (`kiosk.contract.graph.GRAPH_OUTPUTS`): "full" (default, training) -> (visual, tactile); "visual" or "tactile"
+    -> that single tensor, and the other branch is not computed. The exporter wraps the same call (`GraphModule`).
 
     Shape: sketch, mask (N, 1, H, W), H and W multiples of 256 -> visual (N, 3, H, W), tactile (N, 2, H, W).
     """
 
     def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
-                 max_mult: int = 8, outer_skip: bool = False, outputs: str = "both"):
+                 max_mult: int = 8, outer_skip: bool = False):
         super().__init__()
-        assert outputs in ("both", "visual", "tactile"), f"outputs must be both|visual|tactile; got {outputs!r}"
         self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip)
-        self.outputs = outputs
         self.pe_dim = pe_dim
         w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
         cin = 1 + 2 * pe_dim
@@ -100,9 +98,9 @@ class TwoBranchUNet(nn.Module):
         self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip)
 
     @classmethod
-    def from_config(cls, cfg: dict | GeneratorConfig, *, outputs: str = "both") -> "TwoBranchUNet":
+    def from_config(cls, cfg: dict | GeneratorConfig) -> "TwoBranchUNet":
         d = asdict(cfg) if isinstance(cfg, GeneratorConfig) else dict(cfg)
-        return cls(**d, outputs=outputs)
+        return cls(**d)
 
     def model_config(self) -> dict:
         return asdict(self.config)
@@ -113,16 +111,13 @@ class TwoBranchUNet(nn.Module):
         assert mask.shape == sketch.shape, f"mask must match sketch {tuple(sketch.shape)}; got {tuple(mask.shape)}"
         if not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export():
             h, w = sketch.shape[-2:]
-            assert h % MULTIPLE == 0 and w % MULTIPLE == 0, \
-                f"input H and W must be multiples of {MULTIPLE} (8 stride-2 levels); got {h}x{w}"
+            assert h % GRID_MULTIPLE == 0 and w % GRID_MULTIPLE == 0, \
+                f"input H and W must be multiples of {GRID_MULTIPLE} (8 stride-2 levels); got {h}x{w}"
 
     def encode(self, sketch: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """Shared part: masked (sketch, PE) -> encoder skips and the trunk after up4."""
         self._check(sketch, mask)
-        return self.encode_input(torch.cat([sketch, positional_encoding(sketch, self.pe_dim)], 1) * mask)
-
-    def encode_input(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """`encode` from its first-layer input (masked sketch + PE), for an exporter that builds it its own way."""
+        x = masked_input(sketch, mask, self.pe_dim)
         skips = []
         for down in self.downs:
             x = down(x)
@@ -133,33 +128,21 @@ class TwoBranchUNet(nn.Module):
         y = self.up4(torch.cat([skips[4], y], 1))
         return y, skips
 
-    def forward_visual(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
+        assert kind in GRAPH_OUTPUTS, f"kind must be one of {', '.join(GRAPH_OUTPUTS)}; got {kind!r}"
         trunk, skips = self.encode(sketch, mask)
-        return self.visual(trunk, skips) * mask
+        outs = tuple(getattr(self, name)(trunk, skips) * mask for name in GRAPH_OUTPUTS[kind])
+        return outs if len(outs) > 1 else outs[0]
 
-    def forward_tactile(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        trunk, skips = self.encode(sketch, mask)
-        return self.tactile(trunk, skips) * mask
+
+class GraphModule(nn.Module):
+    """`generator(sketch, mask, kind)` as a module of (sketch, mask) only: what is exported as the `kind` graph and
+    what PyTorch eager runs for it, so the trained module and the exported graph share one code path."""
+
+    def __init__(self, generator: nn.Module, kind: str):
+        super().__init__()
+        assert kind in GRAPH_OUTPUTS, f"kind must be one of {', '.join(GRAPH_OUTPUTS)}; got {kind!r}"
+        self.generator, self.kind = generator, kind
 
     def forward(self, sketch: torch.Tensor, mask: torch.Tensor):
-        if self.outputs == "visual":
-            return self.forward_visual(sketch, mask)
-        if self.outputs == "tactile":
-            return self.forward_tactile(sketch, mask)
-        trunk, skips = self.encode(sketch, mask)
-        return self.visual(trunk, skips) * mask, self.tactile(trunk, skips) * mask
-
-
-class SingleOutput(nn.Module):
-    """A thin wrapper whose forward returns one modality and computes only its branch (one exported graph each)."""
-
-    def __init__(self, generator: nn.Module, *, output: str):
-        super().__init__()
-        assert output in ("visual", "tactile"), f"output must be visual|tactile; got {output!r}"
-        self.generator = generator
-        self.output = output
-
-    def forward(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        if self.output == "visual":
-            return self.generator.forward_visual(sketch, mask)
-        return self.generator.forward_tactile(sketch, mask)
+        return self.generator(sketch, mask, self.kind)

@@ -1,8 +1,8 @@
 """The pix2pix ResNet-9 generator, the paper's main baseline: masked sketch only (no positional encoding) ->
 5 channels (RGB + gx, gy), tanh. Trained on 32x32 patches and run on the full image, as in the paper (Sec. 5).
 
-It offers the same interface as `TwoBranchUNet` (forward(sketch, mask) -> (visual, tactile), forward_visual,
-forward_tactile, model_config) so evaluation and the exporter treat both alike.
+It offers the same interface as `TwoBranchUNet` (forward(sketch, mask, kind) with the contract's graph kinds,
+model_config) so evaluation and the exporter treat both alike.
 """
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
+
+from kiosk.contract.graph import GRAPH_OUTPUTS
 
 
 @dataclass
@@ -34,12 +36,9 @@ class ResnetBlock(nn.Module):
 class ResnetGenerator(nn.Module):
     """Shape: sketch, mask (N, 1, H, W), H and W multiples of 4 -> visual (N, 3, H, W), tactile (N, 2, H, W)."""
 
-    def __init__(self, *, ngf: int = 64, n_blocks: int = 9, out_visual: int = 3, out_tactile: int = 2,
-                 outputs: str = "both"):
+    def __init__(self, *, ngf: int = 64, n_blocks: int = 9, out_visual: int = 3, out_tactile: int = 2):
         super().__init__()
-        assert outputs in ("both", "visual", "tactile"), f"outputs must be both|visual|tactile; got {outputs!r}"
         self.config = ResnetConfig(ngf, n_blocks, out_visual, out_tactile)
-        self.outputs = outputs
         layers: list[nn.Module] = [nn.ReflectionPad2d(3), nn.Conv2d(1, ngf, 7), nn.InstanceNorm2d(ngf), nn.ReLU(True)]
         for i in range(2):
             m = 2 ** i
@@ -53,9 +52,9 @@ class ResnetGenerator(nn.Module):
         self.net = nn.Sequential(*layers)
 
     @classmethod
-    def from_config(cls, cfg: dict | ResnetConfig, *, outputs: str = "both") -> "ResnetGenerator":
+    def from_config(cls, cfg: dict | ResnetConfig) -> "ResnetGenerator":
         d = asdict(cfg) if isinstance(cfg, ResnetConfig) else dict(cfg)
-        return cls(**d, outputs=outputs)
+        return cls(**d)
 
     def model_config(self) -> dict:
         return asdict(self.config)
@@ -65,16 +64,10 @@ class ResnetGenerator(nn.Module):
         assert mask.shape == sketch.shape, f"mask must match sketch {tuple(sketch.shape)}; got {tuple(mask.shape)}"
         return self.net(sketch * mask) * mask
 
-    def forward_visual(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return self._all(sketch, mask)[:, :self.config.out_visual]
-
-    def forward_tactile(self, sketch: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return self._all(sketch, mask)[:, self.config.out_visual:]
-
-    def forward(self, sketch: torch.Tensor, mask: torch.Tensor):
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
+        """One network computes every channel; `kind` only picks which are returned."""
+        assert kind in GRAPH_OUTPUTS, f"kind must be one of {', '.join(GRAPH_OUTPUTS)}; got {kind!r}"
         y = self._all(sketch, mask)
-        if self.outputs == "visual":
-            return y[:, :self.config.out_visual]
-        if self.outputs == "tactile":
-            return y[:, self.config.out_visual:]
-        return y[:, :self.config.out_visual], y[:, self.config.out_visual:]
+        parts = {"visual": y[:, :self.config.out_visual], "tactile": y[:, self.config.out_visual:]}
+        outs = tuple(parts[name] for name in GRAPH_OUTPUTS[kind])
+        return outs if len(outs) > 1 else outs[0]

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from kiosk.bundle.archive import open_bundle
 from kiosk.inference.engine import LoadedBundle
 from kiosk.contract.errors import InputError
-from kiosk.inference.scene import (MAX_ROUNDING_LOSS, MULTIPLE, Panel, Planner, Scene, SketchInput, Transform, choose_graph,
+from kiosk.contract.graph import GRID_MULTIPLE
+from kiosk.inference.scene import (MAX_ROUNDING_LOSS, Panel, Planner, Scene, SketchInput, Transform, choose_graph,
                          grid_for, place_region, reference_placement, render_sketch)
 from kiosk.contract.sketch import rasterize
 from tests.kiosk.bundle_factory import make_bundle
@@ -55,7 +56,7 @@ def test_choose_graph_per_modalities():
        ch=st.sampled_from([256, 512, 768]))
 def test_grid_rounding_properties(bw, bh, cw, ch):
     (gw, gh), s = grid_for((bw, bh), (cw, ch))
-    assert gw % MULTIPLE == 0 and gh % MULTIPLE == 0 and MULTIPLE <= gw <= cw and MULTIPLE <= gh <= ch
+    assert gw % GRID_MULTIPLE == 0 and gh % GRID_MULTIPLE == 0 and GRID_MULTIPLE <= gw <= cw and GRID_MULTIPLE <= gh <= ch
     assert 0 < s <= 1.0                              # never more than the panel's pixels
     assert gw / s >= bw - 1e-6 and gh / s >= bh - 1e-6  # the region covers the box
     s0 = min(1.0, cw / bw, ch / bh)
