@@ -146,6 +146,10 @@ def simulate_study(work: Path, kind: str, rates: dict[str, float], n: int, seed:
     from .study_bundles import make_study_bundles
 
     garments = [f"g{i:02d}" for i in range(8)]
+    if (work / f"{kind}.jsonl").exists():          # --keep: a finished run is reported again, not repeated
+        rep = report_log(work / f"{kind}.jsonl")
+        rep["log"] = f"{kind}.jsonl"
+        return rep
     trusted = make_study_bundles(work, ["ours", *rates], garments)
     doc = study_doc(id=f"{kind}-ab-simulated", kind=kind, garments=garments, seed=2023,
                     conditions={c: f"bundles/{c}/{{garment}}.vtb" for c in ["ours", *rates]},
@@ -153,7 +157,7 @@ def simulate_study(work: Path, kind: str, rates: dict[str, float], n: int, seed:
                     kiosk={"server": {"port": 0}, "inference": {"latency_budget_ms": 5000}}, **extra)
     (work / "study.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     config = load_study_config(work / "study.yaml")
-    proc = StudyProcess(work / "study.yaml", work / "proc")
+    proc = StudyProcess(work / "study.yaml", work / "proc", ready_timeout_s=900.0)   # dozens of bundles to verify
     proc.start()
     try:
         run_participants(proc, config, [f"P{i:02d}" for i in range(1, n + 1)], rates, seed=seed)
@@ -173,9 +177,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("docs/study"))
     ap.add_argument("--work", type=Path, default=Path("out/study-sim"))
     ap.add_argument("--participants", type=int, default=20)
+    ap.add_argument("--keep", action="store_true", help="report a study whose log is already in --work again")
     args = ap.parse_args(argv)
     work = args.work.resolve()
-    if work.exists():
+    if work.exists() and not args.keep:
         shutil.rmtree(work)
     reps = {
         "haptic": simulate_study(
