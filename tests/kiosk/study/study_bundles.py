@@ -17,8 +17,10 @@ GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "gaugan": 0.05, "abl"
 
 
 def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
-    """visual = tanh(10 * gain * concat(sketch, mask, sketch)) * mask; tactile = gain * concat(sketch, -sketch) * mask
-    (so each condition's visual output differs too: the visual study can tell them apart)."""
+    """visual = tanh(10 * gain * concat(sketch, mask, sketch)) * mask (so each condition's visual output differs too:
+    the visual study can tell them apart); tactile = gain * concat(mask, -mask): one constant slope over the whole
+    garment, so each condition is one friction level everywhere under it (a sign change at the sketch's lines would
+    be felt as a groove: the friction map interpolates slopes, not levels)."""
     dims = [1, 1, "H", "W"]
     inputs = [helper.make_tensor_value_info("sketch", TensorProto.FLOAT, dims),
               helper.make_tensor_value_info("mask", TensorProto.FLOAT, dims)]
@@ -32,8 +34,8 @@ def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
                   helper.make_node("Tanh", ["v4"], ["vt"]), helper.make_node("Mul", ["vt", "mask"], ["visual"])]
         outs.append(helper.make_tensor_value_info("visual", TensorProto.FLOAT, [1, 3, "H", "W"]))
     if "tactile" in outputs:
-        nodes += [helper.make_node("Neg", ["sketch"], ["neg"]),
-                  helper.make_node("Concat", ["sketch", "neg"], ["t2"], axis=1),
+        nodes += [helper.make_node("Neg", ["mask"], ["neg"]),
+                  helper.make_node("Concat", ["mask", "neg"], ["t2"], axis=1),
                   helper.make_node("Mul", ["t2", "k"], ["t3"]), helper.make_node("Mul", ["t3", "mask"], ["tactile"])]
         outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
     model = helper.make_model(helper.make_graph(nodes, "gain", inputs, outs),
