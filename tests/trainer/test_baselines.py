@@ -46,8 +46,8 @@ def test_forward_and_backward_at_tiny_size(name: str) -> None:
     g.eval()
     s, m = torch.rand(1, 1, 64, 96), torch.ones(1, 1, 64, 96)
     v, t = g(s, m)
-    assert v.shape == (1, 3, 64, 96) and torch.allclose(g.forward_tactile(s, m), t)
-    assert torch.allclose(g.forward_visual(s, m), v)
+    assert v.shape == (1, 3, 64, 96) and torch.allclose(g(s, m, "tactile"), t)
+    assert torch.allclose(g(s, m, "visual"), v)
 
 
 def test_generators_refuse_sizes_they_cannot_take() -> None:
@@ -110,7 +110,7 @@ def test_short_train_through_the_cli_leaves_a_self_describing_checkpoint(garment
     assert ck["method"] == method and ck["model_config"] and ck["generator_class"] in (
         "ResnetGenerator", "Pix2PixHDGenerator", "SpadeGenerator")
     assert all(torch.isfinite(torch.tensor(v)).all() for h in ck["train_state"]["history"] for v in h.values())
-    net, info = load_generator(out, "latest", outputs="tactile")
+    net, info = load_generator(out, "latest")
     crop = info["crop"]
     s = torch.rand(1, 1, crop, crop)
-    assert net(s, torch.ones_like(s)).shape == (1, 2, crop, crop)
+    assert net(s, torch.ones_like(s), "tactile").shape == (1, 2, crop, crop)
