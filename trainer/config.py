@@ -112,7 +112,7 @@ class RunConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     pretrained: PretrainedConfig = field(default_factory=PretrainedConfig)
-    garment: str = ""                # garment folder (absolute path), filled by the CLI
+    garment: str = field(default="", metadata={"empty_ok": True})  # garment folder (absolute), filled by the CLI
 
     def to_dict(self) -> dict:
         return loader.to_mapping(self)

@@ -10,6 +10,7 @@ Field metadata tunes one field:
 - `parse`: a callable `(value) -> value` run instead of the type's coercion (e.g. hex strings for USB ids); it
   raises ValueError with the rest of the sentence ("must be ...").
 - `internal`: True for a field the program fills (a file's digest, its folder): a file naming it is refused.
+- `empty_ok`: True for a text field that may be empty (text is non-empty otherwise: an empty value is a mistake).
 
 Values: bool is only true/false (never 1 or "yes"); int is never a bool; float takes ints and numeric strings
 (PyYAML reads `1e-3` as a string) but never NaN or infinity; Path expands `~` and, given `base_dir`, is resolved
@@ -222,6 +223,8 @@ def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
 def _value(field: dataclasses.Field, key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
     parse = field.metadata.get("parse")
     if parse is None:
+        if value == "" and isinstance(value, str) and _base(hint) is str and not field.metadata.get("empty_ok"):
+            raise ctx.error(f"{key} must be non-empty text")
         return _coerce(key, value, hint, ctx)
     if value is None and _optional(hint):
         return None
