@@ -39,8 +39,11 @@ _NONE_TEXT = ("", "null", "none", "~")
 
 def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config") -> dict[str, Any]:
     """The mapping in a YAML file (an empty file is an empty mapping); errors name the file."""
-    import yaml
+    return parse_yaml(read_bytes(path, error=error, what=what), path, error=error)
 
+
+def read_bytes(path: str | Path, *, error: type[Exception], what: str = "config") -> bytes:
+    """A config file's bytes (for a caller that also records their digest); errors name the file."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -48,6 +51,13 @@ def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config")
         raise error(f"cannot read {what} {path}: {exc.strerror or exc}") from None
     if len(data) > MAX_CONFIG_BYTES:
         raise error(f"{path}: {len(data)} bytes is too large for a {what}")
+    return data
+
+
+def parse_yaml(data: bytes, path: str | Path, *, error: type[Exception]) -> dict[str, Any]:
+    """The mapping in a config file's bytes (`path` names it in errors)."""
+    import yaml
+
     try:
         doc = yaml.safe_load(data.decode("utf-8"))
     except UnicodeDecodeError:
@@ -62,10 +72,11 @@ def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config")
 
 
 def build(cls: type, data: Any, *, error: type[Exception], base_dir: Path | None = None,
-          where: str | None = None) -> Any:
-    """An instance of dataclass `cls` from a parsed document; `where` (a file) is put in front of any error."""
+          where: str | None = None, internal: Mapping[str, Any] | None = None) -> Any:
+    """An instance of dataclass `cls` from a parsed document; `where` (a file) is put in front of any error.
+    `internal` gives the values of the fields the program fills (metadata `internal`), as they are."""
     try:
-        return _build(cls, {} if data is None else data, "", _Ctx(error, base_dir))
+        return _build(cls, {} if data is None else data, "", _Ctx(error, base_dir), internal or {})
     except error as exc:
         if where is None:
             raise
@@ -191,7 +202,7 @@ def _base(hint: Any) -> Any:
     return hint
 
 
-def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
+def _build(cls: type, data: Any, prefix: str, ctx: _Ctx, internal: Mapping[str, Any] | None = None) -> Any:
     where = prefix.rstrip(".")
     if not isinstance(data, Mapping):
         raise ctx.error(f"{where or 'the top level'} must be a mapping{' of sections' if not where else ''}, "
@@ -208,6 +219,7 @@ def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
         raise ctx.error(f"missing key(s){f' in {where}' if where else ''}: {', '.join(sorted(missing))}")
     hints = typing.get_type_hints(cls)
     kwargs = {name: _value(fields[name], f"{prefix}{name}", value, hints[name], ctx) for name, value in data.items()}
+    kwargs.update(internal or {})
     try:
         return cls(**kwargs)
     except ctx.error:
