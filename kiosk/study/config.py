@@ -21,29 +21,24 @@ Every trial pits the reference condition against one other condition on one garm
     trusted_keys: keys/                # or allow_unsigned: true (development only)
     kiosk: kiosk.yaml                  # the daemon's config (a path or an inline mapping)
 
-Relative paths are resolved against the config file's folder.
+Relative paths are resolved against the config file's folder. The project's one loader (`kiosk.config.loader`) reads
+the file and checks the types; the dataclasses below check what the values mean.
 """
 from __future__ import annotations
 
 import hashlib
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 
 # A participant code is a code, never a name: short, no spaces, nothing that reads like personal data.
 CODE_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}\Z")
 _ID_RE = re.compile(r"[a-z0-9][a-z0-9._-]{0,63}\Z")
 DEFAULT_QUESTION = "Which side do you feel better matches the real object material?"
-
-_KEYS = {"id", "question", "seed", "reference", "conditions", "comparisons", "garments", "warmup_garment",
-         "warmup_trials", "test_garments", "time_limit_s", "participants", "log", "trusted_keys", "allow_unsigned",
-         "kiosk"}
-_REQUIRED = {"id", "seed", "reference", "conditions", "garments", "warmup_garment", "participants", "log"}
 
 
 class StudyConfigError(KioskError):
@@ -61,6 +56,20 @@ class Participants:
     codes: tuple[str, ...] = ()
     pattern: str | None = None
 
+    def __post_init__(self) -> None:
+        for c in self.codes:
+            if not isinstance(c, str) or not CODE_RE.match(c):
+                _fail(f"participants.codes entry {c!r} is not a code (1-32 letters, digits, '-' or '_')")
+        if len(set(self.codes)) != len(self.codes):
+            _fail("participants.codes lists a code twice")
+        if self.pattern is not None:
+            try:
+                re.compile(self.pattern)
+            except re.error as exc:
+                _fail(f"participants.pattern is not a valid regular expression ({exc})")
+        if not self.codes and self.pattern is None:
+            _fail("participants needs 'codes' (an allow-list) or 'pattern' (a regular expression)")
+
     def check(self, code: str) -> str:
         """Return `code` if accepted; raise ParticipantError otherwise (the message never echoes odd input raw)."""
         if not isinstance(code, str) or not CODE_RE.match(code):
@@ -72,17 +81,21 @@ class Participants:
         return code
 
 
+_INTERNAL = {"internal": True}
+
+
 @dataclass(frozen=True)
 class StudyConfig:
     id: str
     seed: int
     reference: str
-    conditions: dict[str, dict[str, Path]]   # condition -> garment -> bundle path
+    # condition -> garment -> bundle path; the file may give a path template with {garment} instead of a mapping
+    conditions: dict[str, Any]
     garments: tuple[str, ...]
     warmup_garment: str
     participants: Participants
     log: Path
-    comparisons: tuple[str, ...] = ()        # conditions compared against the reference (default: all others)
+    comparisons: tuple[str, ...] | None = None  # compared against the reference (None: every other condition)
     question: str = DEFAULT_QUESTION
     test_garments: int = 5
     warmup_trials: int = 1
@@ -90,8 +103,48 @@ class StudyConfig:
     trusted_keys: Path | None = None
     allow_unsigned: bool = False
     kiosk: Path | dict | None = None         # the daemon config: a YAML path or an inline mapping
-    source_sha256: str = ""                  # of the config file's bytes, written into the log
-    base_dir: Path = Path(".")               # the config file's folder (relative paths start there)
+    source_sha256: str = field(default="", metadata=_INTERNAL)     # of the config file's bytes, written into the log
+    base_dir: Path = field(default=Path("."), metadata=_INTERNAL)  # the config file's folder (relative paths start there)
+
+    def __post_init__(self) -> None:
+        _name(self.id, "id")
+        for g in self.garments:
+            _name(g, "garments entry")
+        if len(set(self.garments)) != len(self.garments):
+            _fail("garments lists a garment twice")
+        _name(self.warmup_garment, "warmup_garment")
+        if self.warmup_garment not in self.garments:
+            _fail(f"warmup_garment {self.warmup_garment!r} is not in garments")
+        conditions = _conditions(self.conditions, self.garments, self.base_dir)
+        object.__setattr__(self, "conditions", conditions)
+        _name(self.reference, "reference")
+        if self.reference not in conditions:
+            _fail(f"reference {self.reference!r} is not one of the conditions ({', '.join(conditions)})")
+        comparisons = tuple(c for c in conditions if c != self.reference) if self.comparisons is None \
+            else tuple(self.comparisons)
+        for c in comparisons:
+            _name(c, "comparisons entry")
+            if c not in conditions:
+                _fail(f"comparisons names {c!r}, which is not a condition")
+            if c == self.reference:
+                _fail(f"comparisons must not include the reference {self.reference!r} (it is in every trial)")
+        if not comparisons or len(set(comparisons)) != len(comparisons):
+            _fail("comparisons must list at least one condition, each once")
+        object.__setattr__(self, "comparisons", comparisons)
+        pool = len(self.garments) - 1
+        if not 1 <= self.test_garments <= pool:
+            _fail(f"test_garments must be between 1 and {pool} (the garments other than the warm-up), "
+                  f"got {self.test_garments}")
+        if not 0 <= self.warmup_trials <= 20:
+            _fail(f"warmup_trials must be between 0 and 20, got {self.warmup_trials}")
+        if not 1.0 <= float(self.time_limit_s) <= 3600.0:
+            _fail(f"time_limit_s must be between 1 and 3600 seconds, got {self.time_limit_s}")
+        if not self.question.strip() or len(self.question) > 300:
+            _fail("question must be non-empty text of at most 300 characters")
+        object.__setattr__(self, "question", self.question.strip())
+        if self.trusted_keys is None and not self.allow_unsigned:
+            _fail("give trusted_keys (a folder of *.pub keys) to check the bundles' signatures, "
+                  "or allow_unsigned: true for development")
 
     @property
     def test_pool(self) -> tuple[str, ...]:
@@ -106,42 +159,34 @@ class StudyConfig:
 
 
 def _fail(msg: str) -> None:
-    raise StudyConfigError(f"study config: {msg}")
-
-
-def _type(value: Any, kind: type | tuple, key: str, what: str) -> Any:
-    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
-        _fail(f"{key} must be {what}, got a boolean")
-    if not isinstance(value, kind):
-        _fail(f"{key} must be {what}, got {type(value).__name__} {value!r}")
-    return value
+    raise StudyConfigError(msg)
 
 
 def _name(value: Any, key: str) -> str:
-    _type(value, str, key, "a lower-case id like 'denim-shorts'")
-    if not _ID_RE.match(value):
+    if not isinstance(value, str) or not _ID_RE.match(value):
         _fail(f"{key} {value!r} must be a lower-case id: a-z, 0-9, '.', '_', '-' (at most 64)")
     return value
 
 
 def _path(value: Any, key: str, base: Path) -> Path:
-    _type(value, str, key, "a path")
+    if not isinstance(value, (str, Path)) or not str(value):
+        _fail(f"{key} must be a path, got {type(value).__name__} {value!r}")
     p = Path(value).expanduser()
     return p if p.is_absolute() else base / p
 
 
-def _conditions(doc: Any, garments: tuple[str, ...], base: Path) -> dict[str, dict[str, Path]]:
-    _type(doc, dict, "conditions", "a mapping condition -> bundles")
+def _conditions(doc: dict, garments: tuple[str, ...], base: Path) -> dict[str, dict[str, Path]]:
+    """condition -> garment -> bundle path, from templates (`bundles/ours/{garment}.vtb`) or explicit mappings."""
     if len(doc) < 2:
         _fail("conditions must name at least two conditions (the reference and one to compare)")
     out: dict[str, dict[str, Path]] = {}
     for cond, spec in doc.items():
         _name(cond, "conditions key")
         where = f"conditions.{cond}"
-        if isinstance(spec, str):
-            if "{garment}" not in spec:
+        if isinstance(spec, (str, Path)):
+            if "{garment}" not in str(spec):
                 _fail(f"{where} is a path template and must contain '{{garment}}' (or give a mapping)")
-            out[cond] = {g: _path(spec.replace("{garment}", g), where, base) for g in garments}
+            out[cond] = {g: _path(str(spec).replace("{garment}", g), where, base) for g in garments}
         elif isinstance(spec, dict):
             unknown = sorted(set(map(str, spec)) - set(garments))
             if unknown:
@@ -155,99 +200,16 @@ def _conditions(doc: Any, garments: tuple[str, ...], base: Path) -> dict[str, di
     return out
 
 
-def _participants(doc: Any) -> Participants:
-    _type(doc, dict, "participants", "a mapping with 'codes' (a list) and/or 'pattern' (a regular expression)")
-    unknown = sorted(set(map(str, doc)) - {"codes", "pattern"})
-    if unknown:
-        _fail(f"unknown key(s) in participants: {', '.join(unknown)} (valid: codes, pattern)")
-    codes = doc.get("codes", [])
-    _type(codes, list, "participants.codes", "a list of codes")
-    for c in codes:
-        if not isinstance(c, str) or not CODE_RE.match(c):
-            _fail(f"participants.codes entry {c!r} is not a code (1-32 letters, digits, '-' or '_')")
-    if len(set(codes)) != len(codes):
-        _fail("participants.codes lists a code twice")
-    pattern = doc.get("pattern")
-    if pattern is not None:
-        _type(pattern, str, "participants.pattern", "a regular expression")
-        try:
-            re.compile(pattern)
-        except re.error as exc:
-            _fail(f"participants.pattern is not a valid regular expression ({exc})")
-    if not codes and pattern is None:
-        _fail("participants needs 'codes' (an allow-list) or 'pattern' (a regular expression)")
-    return Participants(codes=tuple(codes), pattern=pattern)
-
-
-def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "") -> StudyConfig:
+def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "", where: str = "study config") -> StudyConfig:
     """Validate a parsed study document; raise StudyConfigError naming the first problem."""
-    _type(doc, dict, "the top level", "a mapping")
-    unknown = sorted(set(map(str, doc)) - _KEYS)
-    if unknown:
-        _fail(f"unknown key(s): {', '.join(unknown)} (valid: {', '.join(sorted(_KEYS))})")
-    missing = sorted(_REQUIRED - set(doc))
-    if missing:
-        _fail(f"missing key(s): {', '.join(missing)}")
-    study_id = _name(doc["id"], "id")
-    seed = _type(doc["seed"], int, "seed", "an integer")
-    garments_doc = _type(doc["garments"], list, "garments", "a list of garment ids")
-    garments = tuple(_name(g, "garments entry") for g in garments_doc)
-    if len(set(garments)) != len(garments):
-        _fail("garments lists a garment twice")
-    warmup = _name(doc["warmup_garment"], "warmup_garment")
-    if warmup not in garments:
-        _fail(f"warmup_garment {warmup!r} is not in garments")
-    conditions = _conditions(doc["conditions"], garments, base)
-    reference = _name(doc["reference"], "reference")
-    if reference not in conditions:
-        _fail(f"reference {reference!r} is not one of the conditions ({', '.join(conditions)})")
-    comps_doc = doc.get("comparisons", [c for c in conditions if c != reference])
-    _type(comps_doc, list, "comparisons", "a list of condition names")
-    comparisons = tuple(_name(c, "comparisons entry") for c in comps_doc)
-    for c in comparisons:
-        if c not in conditions:
-            _fail(f"comparisons names {c!r}, which is not a condition")
-        if c == reference:
-            _fail(f"comparisons must not include the reference {reference!r} (it is in every trial)")
-    if not comparisons or len(set(comparisons)) != len(comparisons):
-        _fail("comparisons must list at least one condition, each once")
-    n_test = _type(doc.get("test_garments", 5), int, "test_garments", "an integer")
-    pool = len(garments) - 1
-    if not 1 <= n_test <= pool:
-        _fail(f"test_garments must be between 1 and {pool} (the garments other than the warm-up), got {n_test}")
-    warmup_trials = _type(doc.get("warmup_trials", 1), int, "warmup_trials", "an integer")
-    if not 0 <= warmup_trials <= 20:
-        _fail(f"warmup_trials must be between 0 and 20, got {warmup_trials}")
-    limit = _type(doc.get("time_limit_s", 60.0), (int, float), "time_limit_s", "a number of seconds")
-    if not 1.0 <= float(limit) <= 3600.0:
-        _fail(f"time_limit_s must be between 1 and 3600 seconds, got {limit}")
-    question = _type(doc.get("question", DEFAULT_QUESTION), str, "question", "text")
-    if not question.strip() or len(question) > 300:
-        _fail("question must be non-empty text of at most 300 characters")
-    allow_unsigned = _type(doc.get("allow_unsigned", False), bool, "allow_unsigned", "true or false")
-    trusted = _path(doc["trusted_keys"], "trusted_keys", base) if doc.get("trusted_keys") is not None else None
-    if trusted is None and not allow_unsigned:
-        _fail("give trusted_keys (a folder of *.pub keys) to check the bundles' signatures, "
-              "or allow_unsigned: true for development")
-    kiosk = doc.get("kiosk")
-    if kiosk is not None and not isinstance(kiosk, dict):
-        kiosk = _path(kiosk, "kiosk", base)
-    return StudyConfig(
-        id=study_id, seed=seed, reference=reference, conditions=conditions, garments=garments, warmup_garment=warmup,
-        participants=_participants(doc["participants"]), log=_path(doc["log"], "log", base), comparisons=comparisons,
-        question=question.strip(), test_garments=n_test, warmup_trials=warmup_trials, time_limit_s=float(limit),
-        trusted_keys=trusted, allow_unsigned=allow_unsigned, kiosk=kiosk, source_sha256=source_sha256, base_dir=base)
+    return loader.build(StudyConfig, doc, error=StudyConfigError, base_dir=base, where=where,
+                        internal={"source_sha256": source_sha256, "base_dir": base})
 
 
 def load_study_config(path: str | Path) -> StudyConfig:
     """Read and validate a study YAML file."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise StudyConfigError(f"cannot read study config {path}: {exc.strerror or exc}") from None
-    try:
-        doc = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({exc})") from None
-    return study_from_mapping(doc, path.resolve().parent, source_sha256=hashlib.sha256(raw).hexdigest())
+    raw = loader.read_bytes(path, error=StudyConfigError, what="study config")
+    doc = loader.parse_yaml(raw, path, error=StudyConfigError)
+    return study_from_mapping(doc, path.resolve().parent, source_sha256=hashlib.sha256(raw).hexdigest(),
+                              where=str(path))
