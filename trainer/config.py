@@ -146,6 +146,13 @@ def config_from_dict(data: dict) -> RunConfig:
     return loader.build(RunConfig, data, error=ConfigError)
 
 
+def read_run_config(run_dir: str | Path) -> RunConfig:
+    """The config a run saved as `RUN/config.yaml`; errors name the file."""
+    path = Path(run_dir) / "config.yaml"
+    return loader.build(RunConfig, loader.load_yaml(path, error=ConfigError, what="run config"), error=ConfigError,
+                        where=str(path))
+
+
 def validate(cfg: RunConfig) -> None:
     if not is_grid(cfg.data.crop):
         raise ConfigError(f"data.crop must be a multiple of {GRID_MULTIPLE} (the generator halves the grid eight "
