@@ -2,7 +2,7 @@
 visual PSNR (dB), tactile mean absolute error (slope units), friction-map mean absolute error (uint8 levels)."""
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import onnxruntime as ort
@@ -19,9 +19,12 @@ def psnr(a: np.ndarray, b: np.ndarray, *, peak: float = 2.0) -> float:
 
 
 def compare_sessions(ref: ort.InferenceSession, test: ort.InferenceSession, outputs: list[str],
-                     inputs: Sequence[NetworkInput], friction_scale: float) -> dict[str, float]:
-    """Mean over `inputs` of each error; the worst friction-map error is reported too."""
-    return compare_outputs(reference_outputs(ref, outputs, inputs), test, outputs, inputs, friction_scale)
+                     inputs: Sequence[NetworkInput], friction_scale: float, *, normalization: str = "calibrated",
+                     constants: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Mean over `inputs` of each error; the worst friction-map error is reported too. Friction maps use the
+    bundle's own mapping (`normalization`, `constants`): the error is in the levels the finger gets."""
+    return compare_outputs(reference_outputs(ref, outputs, inputs), test, outputs, inputs, friction_scale,
+                           normalization=normalization, constants=constants)
 
 
 def reference_outputs(ref, outputs: list[str], inputs: Sequence[NetworkInput]) -> list[dict[str, np.ndarray]]:
@@ -30,7 +33,8 @@ def reference_outputs(ref, outputs: list[str], inputs: Sequence[NetworkInput]) -
 
 
 def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: list[str],
-                    inputs: Sequence[NetworkInput], friction_scale: float) -> dict[str, float]:
+                    inputs: Sequence[NetworkInput], friction_scale: float, *, normalization: str = "calibrated",
+                    constants: Mapping[str, float] | None = None) -> dict[str, float]:
     """Like `compare_sessions` with the reference outputs given; `test` is anything with ORT's `run(names, feed)`."""
     vis, tac, fric, fric_max = [], [], [], 0.0
     for a, x in zip(reference, inputs):
@@ -39,8 +43,10 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
             vis.append(psnr(a["visual"], b["visual"]))
         if "tactile" in a:
             tac.append(float(np.mean(np.abs(a["tactile"] - b["tactile"]))))
-            fa = friction_map(a["tactile"][0, 0], a["tactile"][0, 1], friction_scale).astype(np.int16)
-            fb = friction_map(b["tactile"][0, 0], b["tactile"][0, 1], friction_scale).astype(np.int16)
+            fa = friction_map(a["tactile"][0, 0], a["tactile"][0, 1], friction_scale, normalization=normalization,
+                              constants=constants).astype(np.int16)
+            fb = friction_map(b["tactile"][0, 0], b["tactile"][0, 1], friction_scale, normalization=normalization,
+                              constants=constants).astype(np.int16)
             fric.append(float(np.mean(np.abs(fa - fb))))
             fric_max = max(fric_max, float(np.abs(fa - fb).max()))
     out: dict[str, float] = {}

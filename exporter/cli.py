@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from exporter.quiet import chatter_to
+
 
 def _sizes(text: str) -> list[tuple[int, int]]:
     out = []
@@ -30,6 +32,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__)
     p.add_argument("--run", type=Path, required=True, help="a training run folder (vtkiosk train --out)")
     p.add_argument("--out", type=Path, required=True, help="bundle file to write (.vtb)")
+    p.add_argument("--log", type=Path, default=None,
+                   help="where the libraries' own output goes (default: OUT.log beside the bundle)")
     p.add_argument("--precision", choices=("int8", "fp16", "fp32"), default="int8")
     p.add_argument("--sizes", type=_sizes, default=[(512, 512), (768, 768)],
                    help="input sizes the kiosk may run, multiples of 256 (default 512,768); int8 is calibrated "
@@ -44,8 +48,14 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--max-friction-mae", type=float, default=1.0,
                    help="refuse an int8 graph whose friction-map error exceeds this many levels (default 1)")
     p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
-    p.add_argument("--model-version", default=None)
+    p.add_argument("--model-version", default=None,
+                   help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
+    p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
+                   help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
+    p.add_argument("--runs-root", type=Path, default=None,
+                   help="record the run in the manifest relative to this folder (default: the working directory; "
+                        "a run outside it is recorded as a hash of its path)")
     return p
 
 
@@ -57,10 +67,18 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     key = load_private_key(args.sign_key) if args.sign_key else None
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
-                       force=args.force, model_version=args.model_version, display_name=args.display_name)
+                       force=args.force, model_version=args.model_version, display_name=args.display_name,
+                       normalization=args.normalization, runs_root=args.runs_root)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
-    report = export_run(args.run, args.out, cfg, signing_key=key)
+    log_path = args.log or Path(str(args.out) + ".log")
+    with chatter_to(log_path) as say:
+        try:
+            report = export_run(args.run, args.out, cfg, signing_key=key, progress=say)
+        except Exception as exc:
+            if getattr(exc, "user_facing", False):
+                exc.args = (f"{exc} (library output: {log_path})",)
+            raise
     m = report.manifest
     print(f"wrote {report.out}: {m.garment_id} {m.model_version}, {len(m.graphs)} graphs at {args.precision}, "
           f"{'signed' if key else 'UNSIGNED (kiosks refuse it without --allow-unsigned)'}")

@@ -4,6 +4,7 @@ its measured error against fp32, the garment's friction calibration and referenc
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import platform
 import socket
@@ -23,7 +24,9 @@ from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
 from kiosk.bundle.archive import sha256_file
 from exporter.errors import ExportError
 from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.contract.garment import garment_id
 from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, is_grid
+from kiosk.contract.haptics import NORMALIZATIONS
 
 PARITY_BOUND = 1e-4
 
@@ -41,9 +44,11 @@ class ExportConfig:
     force: bool = False
     which: str = "best"
     panel_size: tuple[int, int] = (1280, 800)
+    normalization: str = "perceptual"   # friction mapping the bundle asks for (kiosk.contract.haptics)
     model_version: str | None = None
     display_name: str | None = None
     seed: int = 0
+    runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
 
 
 @dataclass
@@ -52,6 +57,21 @@ class ExportReport:
     parity: dict[str, float]
     errors: dict[str, dict[str, float]]
     out: Path
+
+
+def source_run_name(run_dir: Path, runs_root: Path | None = None) -> str:
+    """How the manifest names the training run: its path relative to `runs_root` (default: the working directory),
+    or, for a run outside it, `sha256:` and the first 16 hex digits of the SHA-256 of its resolved path. Never an
+    absolute path: a bundle travels to kiosks and must not carry the build machine's layout."""
+    run = Path(run_dir).resolve()
+    root = Path(runs_root if runs_root is not None else Path.cwd()).resolve()
+    try:
+        rel = run.relative_to(root).as_posix()
+    except ValueError:
+        rel = ""
+    if rel and rel != ".":
+        return rel
+    return "sha256:" + hashlib.sha256(str(run).encode()).hexdigest()[:16]
 
 
 def rewrites_conv_transpose(precision: str) -> bool:
@@ -83,12 +103,6 @@ def _numbers(doc, prefix: str = "") -> dict[str, float]:
     return out
 
 
-def _garment_id(name: str) -> str:
-    material = name.removeprefix("singleskit_").split("_padded_")[0]
-    out = "".join(("-" + c.lower()) if c.isupper() and i else c.lower() for i, c in enumerate(material))
-    return "".join(c for c in out if c.isalnum() or c in "-._")[:64] or "garment"
-
-
 def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
     """Sketch, mask and visual of the camera frame (not the padding): what the A/B study and attract screen show."""
     from trainer.data.touchclothing import load_garment
@@ -104,6 +118,19 @@ def _reference_assets(garment_dir: Path, folder: Path) -> dict[str, Path]:
         raise ExportError(f"{garment_dir}: no ground-truth visual to ship as a reference asset")
     cv2.imwrite(str(paths["visual"]), cv2.cvtColor(g.visual[crop], cv2.COLOR_RGB2BGR))
     return paths
+
+
+def _physical(garment_dir: Path, info: dict, normalization: str) -> tuple[float, dict[str, float]]:
+    """The model's pixel pitch (recorded by the trainer; for older runs, the dataset's) and the friction mapping's
+    constants, calibrated on the garment's measured contact pixels like its friction scale."""
+    from trainer.data.touchclothing import load_garment
+    from trainer.physical import dataset_pitch_mm, friction_constants
+
+    g = load_garment(garment_dir, tactile=normalization == "perceptual")
+    pitch = info.get("pixel_pitch_mm")
+    if not (isinstance(pitch, (int, float)) and not isinstance(pitch, bool) and pitch > 0):
+        pitch = dataset_pitch_mm(g)[0]
+    return float(pitch), friction_constants(g, normalization)
 
 
 def _recipe(cfg: ExportConfig) -> dict[str, str]:
@@ -140,6 +167,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     scale = info.get("friction_scale")
     if not isinstance(scale, (int, float)) or not scale > 0:
         raise ExportError(f"run {run_dir} has no friction calibration (friction_scale) in its checkpoint")
+    if cfg.normalization not in NORMALIZATIONS:
+        raise ExportError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {cfg.normalization!r}")
+    pitch, constants = _physical(garment_dir, info, cfg.normalization)
     with tempfile.TemporaryDirectory(prefix="vtkiosk-export-") as tmp_s:
         tmp = Path(tmp_s)
         assets = _reference_assets(garment_dir, tmp / "assets")
@@ -150,6 +180,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         graphs: dict[str, GraphSpec] = {}
         parities: dict[str, float] = {}
         errors: dict[str, dict[str, float]] = {}
+        progress(f"export: {len(cfg.graphs)} graph(s) at {cfg.precision}, sizes "
+                 + ", ".join(f"{w}x{h}" for w, h in cfg.sizes))
         for kind in cfg.graphs:
             fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0],
                                 rewrite=rewrites_conv_transpose(cfg.precision))
@@ -160,7 +192,8 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                                   "the export is wrong")
             path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg)
             if cfg.precision != "fp32":
-                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale)
+                err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale,
+                                       normalization=cfg.normalization, constants=constants or None)
                 errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
                 progress(f"export: {kind} graph {cfg.precision} vs fp32: " +
                          ", ".join(f"{k} {v:.4g}" for k, v in err.items()))
@@ -178,18 +211,19 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
         now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0)
         manifest = Manifest(
             schema_version=SCHEMA_VERSION,
-            garment_id=_garment_id(garment_dir.name),
+            garment_id=garment_id(garment_dir.name),
             display_name=cfg.display_name or garment_dir.name.removeprefix("singleskit_").split("_padded_")[0],
             model_version=cfg.model_version or f"{now:%Y%m%d}-{info.get('step', 0)}",
             method=str(info.get("method") or run_cfg.method),
             created_at=now.isoformat().replace("+00:00", "Z"),
             exporter_version=exporter.__version__,
-            source_run=str(run_dir.resolve()),
+            source_run=source_run_name(run_dir, cfg.runs_root),
             checkpoint_sha256=sha256_file(ck_path),
             graphs=graphs,
             friction_scale=float(scale),
-            friction_normalization="calibrated",
-            pixel_pitch_mm=0.3,
+            friction_normalization=cfg.normalization,
+            friction_constants=constants,
+            pixel_pitch_mm=pitch,
             panel_size=list(cfg.panel_size),
             assets={k: f"assets/{k}.png" for k in assets},
             files={},
@@ -199,5 +233,6 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                         "checkpoint": ck_path.name, **_recipe(cfg),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
+        progress("export: writing" + (" and signing" if signing_key is not None else "") + " the bundle")
         written = write_bundle(out, manifest, sources, signing_key=signing_key)
     return ExportReport(written, parities, errors, Path(out))

@@ -12,6 +12,9 @@ Field metadata tunes one field:
 - `internal`: True for a field the program fills (a file's digest, its folder): a file naming it is refused.
 - `empty_ok`: True for a text field that may be empty (text is non-empty otherwise: an empty value is a mistake).
 
+YAML comes from outside (an operator's file, a study from a lab): it is read with bounded nesting, so `[[[[...` or
+an integer of thousands of digits is a one-line error (`YAMLLimitError`), not a RecursionError.
+
 Values: bool is only true/false (never 1 or "yes"); int is never a bool; float takes ints and numeric strings
 (PyYAML reads `1e-3` as a string) but never NaN or infinity; Path expands `~` and, given `base_dir`, is resolved
 against the config file's folder. Errors are raised as the caller's own exception class (`error=`), so each
@@ -32,7 +35,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 MAX_CONFIG_BYTES = 1 << 20
+MAX_DEPTH = 32   # configs nest 3 or 4 levels deep
 _NUMBER_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 _NONE_TEXT = ("", "null", "none", "~")
 
@@ -56,14 +62,12 @@ def read_bytes(path: str | Path, *, error: type[Exception], what: str = "config"
 
 def parse_yaml(data: bytes, path: str | Path, *, error: type[Exception]) -> dict[str, Any]:
     """The mapping in a config file's bytes (`path` names it in errors)."""
-    import yaml
-
     try:
-        doc = yaml.safe_load(data.decode("utf-8"))
+        doc = safe_load(data.decode("utf-8"))
     except UnicodeDecodeError:
         raise error(f"{path}: not UTF-8 text") from None
     except yaml.YAMLError as exc:
-        raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        raise error(f"{path}: not valid YAML ({one_line(str(exc))})") from None
     if doc is None:
         return {}
     if not isinstance(doc, dict):
@@ -86,11 +90,62 @@ def build(cls: type, data: Any, *, error: type[Exception], base_dir: Path | None
 def load(cls: type, path: str | Path | None, *, error: type[Exception], overrides: Mapping | None = None,
          what: str = "config") -> Any:
     """Read a YAML file (or none: defaults), merge `overrides` in by section, build `cls`. Relative paths in the
-    file start at its folder."""
+    file start at its folder. A section an override touches must be valid in the file too: an option that hides a
+    bad value today leaves the program unable to start the day it runs without that option."""
     doc = load_yaml(path, error=error, what=what) if path is not None else {}
-    doc = merge(doc, overrides or {})
-    return build(cls, doc, error=error, base_dir=None if path is None else Path(path).parent,
-                 where=str(path) if path is not None else "the command line")
+    where = str(path) if path is not None else "the command line"
+    base_dir = None if path is None else Path(path).parent
+    touched = [k for k in (overrides or {}) if isinstance(doc.get(k), Mapping)]
+    try:
+        check_sections(cls, doc, touched, error=error, base_dir=base_dir)
+    except error as exc:
+        raise error(f"{where}: {exc}") from None
+    return build(cls, merge(doc, overrides or {}), error=error, base_dir=base_dir, where=where)
+
+
+def check_sections(cls: type, doc: Mapping, names: Iterable[str], *, error: type[Exception],
+                   base_dir: Path | None = None) -> None:
+    """Build the named sections (dataclass fields of `cls`) of `doc` on their own; errors name the section's key."""
+    hints, fields = typing.get_type_hints(cls), {f.name: f for f in dataclasses.fields(cls)}
+    for name in names:
+        if name in fields and dataclasses.is_dataclass(hints[name]):
+            _value(fields[name], name, doc[name], hints[name], _Ctx(error, base_dir))
+
+
+class YAMLLimitError(yaml.YAMLError):
+    """A document that is well-formed YAML but no sane config: nested too deeply, or a value too large."""
+
+
+class BoundedLoader(yaml.SafeLoader):
+    """SafeLoader that refuses documents nested deeper than `max_depth` collections (PyYAML composes nested
+    collections recursively, so deep nesting would otherwise end in a RecursionError)."""
+
+    max_depth = MAX_DEPTH
+
+    def compose_node(self, parent, index):  # type: ignore[override]
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > self.max_depth:
+                line = self.peek_event().start_mark.line + 1
+                raise YAMLLimitError(f"nested deeper than {self.max_depth} levels (line {line})")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def safe_load(text: str | bytes) -> Any:
+    """`yaml.safe_load` with bounded nesting; every failure is a `yaml.YAMLError` with a one-line message."""
+    try:
+        return yaml.load(text, Loader=BoundedLoader)  # noqa: S506 - BoundedLoader is a SafeLoader
+    except RecursionError:
+        raise YAMLLimitError("nested too deeply") from None
+    except ValueError as exc:   # int() of more than 4300 digits, and the like
+        raise YAMLLimitError(f"holds a value that cannot be read ({one_line(str(exc), 100)})") from None
+
+
+def one_line(text: str, limit: int = 200) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def merge(doc: Mapping, overrides: Mapping) -> dict:
@@ -106,8 +161,6 @@ def parse_overrides(cls: type, items: Iterable[str], *, error: type[Exception]) 
 
     The text after `=` is read as the field's type: verbatim for strings and paths, YAML for the rest, and a
     comma-separated list for tuples (`optim.betas=0.5,0.9`)."""
-    import yaml
-
     out: dict = {}
     for item in items:
         if "=" not in item:
@@ -135,11 +188,14 @@ def parse_overrides(cls: type, items: Iterable[str], *, error: type[Exception]) 
             value = text
         else:
             try:
-                value = yaml.safe_load(text)
+                value = safe_load(text)
             except yaml.YAMLError:
                 value = text
             if typing.get_origin(_base(hint)) is tuple and isinstance(value, str):
-                value = [yaml.safe_load(t) for t in value.split(",")]
+                try:
+                    value = [safe_load(t) for t in value.split(",")]
+                except yaml.YAMLError:
+                    pass
         try:
             value = _value(field, dotted, value, hint, _Ctx(error, None))
         except error as exc:

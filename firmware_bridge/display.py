@@ -193,6 +193,9 @@ class HapticDisplay:
         try:
             reply = self.session.request(lambda s: P.Hello(s, P.VERSION, P.VERSION, self.transport.report_size),
                                          timeout_s=self.config.handshake_timeout_s)
+            if isinstance(reply, P.Nack) and reply.code == P.NackCode.BAD_VALUE:
+                raise ProtocolError(f"bridge uses {reply.frame_id} B reports but report_size is "
+                                    f"{self.transport.report_size}; set report_size: {reply.frame_id}")
             if isinstance(reply, P.Nack):
                 raise ProtocolError(f"bridge refused protocol v{P.VERSION} (NACK {P.NackCode(reply.code).name}); "
                                     f"update the bridge firmware")

@@ -18,13 +18,14 @@ ALLOWED: dict[str, set[str]] = {
     "kiosk.inference": {"kiosk.contract", "kiosk.bundle"},
     "kiosk.ops": {"kiosk.contract"},
     "kiosk.service": {"kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.ops",
-                      "firmware_bridge"},
+                      "kiosk.fleet.layout", "kiosk.fleet.state", "firmware_bridge"},
+    "kiosk.fleet": {"kiosk.contract", "kiosk.bundle", "kiosk.ops", "kiosk.service.config"},
     "kiosk.study": {"kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.ops",
                     "kiosk.service", "firmware_bridge"},
     "kiosk.bench": {"kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.ops"},
     "firmware_bridge": set(),
     "trainer": {"kiosk.contract", "kiosk.config", "kiosk.ops.signals"},
-    "exporter": {"trainer", "kiosk.contract", "kiosk.config", "kiosk.bundle"},
+    "exporter": {"trainer", "kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.bench"},
     "vtkiosk": {"kiosk", "firmware_bridge", "trainer", "exporter"},
 }
 # A room's command line is its front door and may also drive the rooms its commands talk to.

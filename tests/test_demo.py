@@ -28,7 +28,7 @@ def test_demo_builds_a_signed_bundle_then_starts_from_cache(tmp_path_factory, tm
     log = (bundle.parent / "build.log").read_text()
     assert "train --data" in log and "--preset demo" in log and "export --run" in log  # our own tools built it
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "demo", "--workdir", str(workdir), "--steps", "2",
+    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "demo", "--quick", "--workdir", str(workdir), "--steps", "2",
                            "--exit-after-ready", "--port", "0"], cwd=ROOT, capture_output=True, text=True,
                           timeout=300)
     took = time.perf_counter() - t0

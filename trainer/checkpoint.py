@@ -66,6 +66,6 @@ def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]
         raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
     net.eval()
     info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
-                                   "garment", "crop")}
+                                   "garment", "crop", "pixel_pitch_mm")}
     info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")
     return net, info

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 from pathlib import Path
 
@@ -19,15 +20,19 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     which.add_argument("--garment", help="garment name (material, e.g. DenimShorts) or folder name")
     which.add_argument("--all", action="store_true", help="every garment in --data, one after the other")
     which.add_argument("--index", type=int, help="the N-th garment in --data (0-based; for Slurm job arrays)")
-    p.add_argument("--method", default="ours", help="ours, pix2pix, ours-no-gan, ours-no-rec, no-visual-gan, "
-                                                    "no-tactile-gan, no-visual-rec, no-tactile-rec")
-    p.add_argument("--preset", default="cpu", help="paper, cpu, tiny, or a path to a YAML preset")
+    from trainer.config import PRESETS_DIR
+    from trainer.methods import METHODS
+    p.add_argument("--method", default="ours", help=", ".join(METHODS))
+    presets = ", ".join(sorted(f.stem for f in PRESETS_DIR.glob("*.yaml")))
+    p.add_argument("--preset", default="cpu", help=f"{presets}, or a path to a YAML preset")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one config value (repeatable), e.g. --set train.steps=100")
     p.add_argument("--out", required=True, type=Path,
                    help="run folder (with --all/--index: a parent folder; runs go to OUT/<garment>/<method>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--steps", type=int, help="shorthand for --set train.steps=N")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="also log what is set up (substitute losses, resume point); default: progress and problems")
     return p
 
 
@@ -44,8 +49,9 @@ def pick_garments(args) -> list[Path]:
         if len(found) == 1:
             return found
         raise DatasetError(f"{args.data} holds {len(found)} garments; name one with --garment or pass --all")
+    from kiosk.contract.garment import same_garment
     for g in found:
-        if args.garment in (g.name, parse_folder_name(g.name)[0]):
+        if same_garment(args.garment, g.name):       # DenimShorts, denim-shorts or the folder name
             return [g]
     names = ", ".join(parse_folder_name(g.name)[0] for g in found)
     raise DatasetError(f"no garment {args.garment!r} in {args.data} (have: {names})")
@@ -53,7 +59,8 @@ def pick_garments(args) -> list[Path]:
 
 def main(argv: list[str], prog: str = "vtkiosk train") -> int:
     args = build_parser(prog).parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    args.argv = list(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     from trainer.config import load_config
     overrides = list(args.overrides) + ([f"train.steps={args.steps}"] if args.steps else [])
     cfg0 = load_config(args.preset, overrides=overrides, method=args.method)
@@ -82,6 +89,9 @@ def _train_all(args, garments, overrides, dist, signals) -> int:
         if len(garments) == 1 and args.index is not None:
             out = args.out / parse_folder_name(g.name)[0] / cfg.method
         trainer = Trainer(cfg, g, out, resume=args.resume, dist=dist)
+        if (dist is None or dist.main) and not args.resume:
+            # how this run was made, as typed (the demo catalogue records it beside the packed model)
+            (out / "command.txt").write_text(shlex.join(["vtkiosk", "train", *args.argv]) + "\n")
         summary = trainer.run(should_stop=lambda: signals.stop)
         if dist is None or dist.main:
             val = summary.get("val") or {}

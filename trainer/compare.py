@@ -1,6 +1,7 @@
-"""`--compare`: a methods x metrics table in the shape of the paper's Table 1/2 (mean over garments, best in bold),
-as markdown + JSON, and a qualitative sheet per garment (sketch and ground truth, then each method's visual,
-normal map, height map and friction map)."""
+"""`--compare`: methods x metrics in the shape of the paper's Tables 1/2, with the reference rows (flat,
+mean-colour, oracle) and the gap closed beside every method, as markdown + JSON; paired bootstrap intervals of
+"ours - X" for every other method and reference; a qualitative sheet per garment (sketch and ground truth, the
+reference rows, then each method's visual, normal map, height map and friction map)."""
 from __future__ import annotations
 
 import json
@@ -8,83 +9,234 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from trainer.evaluate import HIGHER_IS_BETTER, Prediction, evaluate_run
+from trainer.bootstrap import paired_bootstrap
+from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
+from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 
-COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1", "L1 ↓"),
-           ("visual_lpips", "LPIPS ↓"), ("visual_sifid", "SIFID ↓"), ("visual_fbsifid", "FB-SIFID ↓"),
-           ("tactile_mse", "T-MSE ↓"), ("tactile_angle_deg", "T-angle° ↓"), ("tactile_lpips", "T-LPIPS ↓"),
-           ("tactile_sifid", "T-SIFID ↓"), ("tactile_fbsifid", "T-FB-SIFID ↓"),
-           ("full_angle_deg", "Full angle° ↓"), ("full_friction_mae", "Friction MAE ↓"),
-           ("full_fbsifid", "Full FB-SIFID ↓")]
+VISUAL_COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1", "L1 ↓"),
+                  ("visual_lpips", "LPIPS ↓"), ("visual_fbsifid_unseen", "FB-SIFID unseen ↓"),
+                  ("visual_sifid_unseen", "SIFID unseen ↓"), ("visual_fbsifid_seen", "FB-SIFID seen ↓"),
+                  ("visual_sifid_seen", "SIFID seen ↓")]
+TACTILE_COLUMNS = [("tactile_mse", "T-MSE ↓"), ("tactile_angle_deg", "T-angle° ↓"),
+                   ("full_angle_deg", "Full angle° ↓"), ("full_angle_deg_inside", "inside° ↓"),
+                   ("full_angle_deg_outside", "outside° ↓"), ("full_friction_mae", "Friction MAE ↓"),
+                   ("full_friction_mae_inside", "inside ↓"), ("full_friction_mae_outside", "outside ↓"),
+                   ("tactile_lpips", "T-LPIPS ↓"), ("tactile_sifid_seen", "T-SIFID seen ↓"),
+                   ("tactile_fbsifid_seen", "T-FB-SIFID seen ↓"), ("full_fbsifid_seen", "Full FB-SIFID seen ↓"),
+                   ("full_fbsifid_unseen", "Full FB-SIFID unseen ↓")]
+# gap-closed columns follow these (tactile, lower is better)
+GAP_AFTER = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle_deg_outside", "full_friction_mae",
+             "full_friction_mae_outside")
+DIFF_METRICS = ("visual_psnr", "visual_ssim", "visual_l1", "tactile_mse", "tactile_angle_deg", "full_angle_deg",
+                "full_angle_deg_inside", "full_angle_deg_outside", "full_friction_mae",
+                "full_friction_mae_outside")
+COLUMNS = VISUAL_COLUMNS + TACTILE_COLUMNS
+HEADERS = dict(COLUMNS)
 
 
-def table(results: list[dict]) -> tuple[str, dict]:
-    """Mean per method over its runs (garments, seeds); with several runs a cell reads `mean ± sd` (sample sd), so
-    a difference can be read against the spread. Best mean per column in bold."""
+def _gap(r: dict, k: str):
+    return (r.get("gap_closed") or {}).get(k)
+
+
+def _reference_rows(results: list[dict]) -> dict[str, list[dict]]:
+    """One reference result per garment (the first run's; references do not depend on the run)."""
+    out: dict[str, list[dict]] = defaultdict(list)
+    seen: set[str] = set()
+    for r in results:
+        if r["garment"] in seen or not r.get("references"):
+            continue
+        seen.add(r["garment"])
+        for name, ref in r["references"].items():
+            out[name].append(ref | {"garment": r["garment"]})
+    return {n: out[n] for n in REFERENCE_ROWS if n in out}
+
+
+def _stats(rows: list[dict], keys: list[str]) -> tuple[dict, dict]:
+    means, sds = {}, {}
+    for k in keys:
+        if k.startswith("gap:"):
+            v = [g for g in (_gap(r, k[4:]) for r in rows) if g is not None]
+        else:
+            v = [r[k] for r in rows if k in r and r[k] is not None and np.isfinite(r[k])]
+        if v:
+            means[k] = float(np.mean(v))
+            if len(v) > 1:
+                sds[k] = float(np.std(v, ddof=1))
+    return means, sds
+
+
+def _section(title: str, cols: list[tuple[str, str]], methods: dict[str, list[dict]],
+             refs: dict[str, list[dict]]) -> tuple[str, dict, dict, dict]:
+    keys = [k for k, _ in cols]
+    stats = {m: _stats(rs, keys) for m, rs in methods.items()}
+    rstats = {m: _stats(rs, keys) for m, rs in refs.items()}
+    cols = [(k, h) for k, h in cols if any(k in s[0] for s in list(stats.values()) + list(rstats.values()))]
+    if not cols:
+        return "", {}, {}, {}
+    best = {}
+    for k, _ in cols:
+        vals = [s[0][k] for s in stats.values() if k in s[0]]
+        if vals and not k.startswith("gap:"):
+            best[k] = (max if k in HIGHER_IS_BETTER else min)(vals)
+    lines = [f"### {title}", "", "| method | garments | runs | " + " | ".join(h for _, h in cols) + " |",
+             "|---|---|---|" + "---|" * len(cols)]
+
+    def row(name, rs, mean, sd, bold):
+        cells = []
+        for k, _ in cols:
+            if k not in mean:
+                cells.append("–")
+                continue
+            s = f"{mean[k]:.2f}" if k.startswith("gap:") else f"{mean[k]:.4g}"
+            s = f"**{s}**" if bold and k in best and np.isclose(mean[k], best[k]) else s
+            cells.append(f"{s} ± {sd[k]:.2g}" if k in sd else s)
+        n_g = len({r["garment"] for r in rs})
+        return f"| {name} | {n_g} | {len(rs)} | " + " | ".join(cells) + " |"
+
+    for m, rs in methods.items():
+        lines.append(row(m, rs, *stats[m], True))
+    for m, rs in refs.items():
+        lines.append(row(f"*{m}* (reference)", rs, *rstats[m], False))
+    return "\n".join(lines) + "\n", {m: s[0] for m, s in stats.items()}, {m: s[1] for m, s in stats.items()}, \
+        {"mean": {m: s[0] for m, s in rstats.items()}, "sd": {m: s[1] for m, s in rstats.items()}, "best": best}
+
+
+def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") -> tuple[str, dict]:
+    """Mean per method over its runs (garments, seeds); with several runs a cell reads `mean ± sd` (sample sd).
+    Best method mean per column in bold (reference rows are never bold: the oracle is not a competitor). `gap`
+    columns: mean over runs of (flat - method) / (flat - oracle) on the same garment."""
     by_method: dict[str, list[dict]] = defaultdict(list)
     for r in results:
         by_method[r["method"]].append(r)
-    cols = [(k, h) for k, h in COLUMNS if any(k in r for r in results)]
-    values = {m: {k: [r[k] for r in rs if k in r] for k, _ in cols if any(k in r for r in rs)}
-              for m, rs in by_method.items()}
-    means = {m: {k: float(np.mean(v)) for k, v in row.items()} for m, row in values.items()}
-    sds = {m: {k: float(np.std(v, ddof=1)) for k, v in row.items() if len(v) > 1} for m, row in values.items()}
-    garments = {m: sorted({r["garment"] for r in rs}) for m, rs in by_method.items()}
-    best = {}
-    for k, _ in cols:
-        vals = [means[m][k] for m in means if k in means[m]]
-        best[k] = (max if k in HIGHER_IS_BETTER else min)(vals)
-    lines = ["| method | garments | runs | " + " | ".join(h for _, h in cols) + " |",
-             "|---|---|---|" + "---|" * len(cols)]
-    for m, row in means.items():
+    refs = _reference_rows(results)
+    tcols = []
+    for k, h in TACTILE_COLUMNS:
+        tcols.append((k, h))
+        if k in GAP_AFTER:
+            tcols.append((f"gap:{k}", "gap"))
+    md_v, mv, sv, rv = _section("Visual (inside the object mask)", VISUAL_COLUMNS,
+                                by_method, {k: v for k, v in refs.items() if k == "mean-colour"})
+    md_t, mt, st, rt = _section("Tactile", tcols, by_method, {k: v for k, v in refs.items() if k != "mean-colour"})
+    md = "\n".join(s for s in (md_v, md_t) if s)
+    if diffs:
+        md += "\n" + ci_table(diffs, ours)
+    means = {m: mv.get(m, {}) | mt.get(m, {}) for m in by_method}
+    gaps = {m: {k[4:]: v for k, v in row.items() if k.startswith("gap:")} for m, row in means.items()}
+    means = {m: {k: v for k, v in row.items() if not k.startswith("gap:")} for m, row in means.items()}
+    sds = {m: {k: v for k, v in (sv.get(m, {}) | st.get(m, {})).items() if not k.startswith("gap:")}
+           for m in by_method}
+    ref_means = {n: (rv.get("mean", {}).get(n, {}) | rt.get("mean", {}).get(n, {})) for n in refs}
+    data = {"mean": means, "sd": sds, "gap_closed": gaps,
+            "garments": {m: sorted({r["garment"] for r in rs}) for m, rs in by_method.items()},
+            "best": {k: v for k, v in (rv.get("best", {}) | rt.get("best", {})).items()},
+            "references": {n: {k: v for k, v in row.items() if not k.startswith("gap:")} for n, row in ref_means.items()},
+            "reference_gap_closed": {n: {k[4:]: v for k, v in row.items() if k.startswith("gap:")}
+                                     for n, row in ref_means.items()},
+            "runs": results}
+    if diffs:
+        data["differences"] = {"method": ours, "level": 0.95, "rows": diffs}
+    return md, data
+
+
+def ci_table(diffs: dict[str, dict[str, dict]], ours: str) -> str:
+    """"ours - X [lo, hi]" per method or reference X and metric (paired bootstrap, 95 %)."""
+    metrics = [k for k in DIFF_METRICS if any(k in d for d in diffs.values())]
+    if not metrics:
+        return ""
+    lines = [f"### {ours} − X, paired bootstrap 95 % interval", "",
+             "Resampled: held-out touches (tactile patches) or 32 px blocks (visual, full field), then garments, "
+             "then each method's seeds. An interval that excludes 0 orders the two; for ↓ metrics a negative "
+             f"difference means {ours} is better.", "",
+             "| X | " + " | ".join(HEADERS[k] for k in metrics) + " |", "|---|" + "---|" * len(metrics)]
+    for x, row in diffs.items():
         cells = []
-        for k, _ in cols:
-            if k not in row:
-                cells.append("–")
-                continue
-            s = f"{row[k]:.4g}"
-            s = f"**{s}**" if np.isclose(row[k], best[k]) else s
-            cells.append(f"{s} ± {sds[m][k]:.2g}" if k in sds[m] else s)
-        lines.append(f"| {m} | {len(garments[m])} | {len(by_method[m])} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n", {"mean": means, "sd": sds, "garments": garments, "best": best,
-                                     "runs": results}
+        for k in metrics:
+            d = row.get(k)
+            cells.append("–" if d is None else f"{d['diff']:+.3g} [{d['lo']:+.3g}, {d['hi']:+.3g}]")
+        name = f"*{x}*" if x in REFERENCE_ROWS else x
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed: int = 0) -> dict:
+    """Paired bootstrap of `ours` - X for every other method and every reference row, per DIFF_METRICS."""
+    runs: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for e in evals:
+        runs[e.result["method"]][e.result["garment"]].append(e.units)
+    for e in evals:   # one reference per garment
+        for name, u in e.ref_units.items():
+            if e.result["garment"] not in runs[name]:
+                runs[name][e.result["garment"]].append(u)
+    if ours not in runs:
+        return {}
+    out: dict[str, dict] = {}
+    others = [m for m in runs if m != ours and m not in REFERENCE_ROWS] + [m for m in REFERENCE_ROWS if m in runs]
+    for x in others:
+        row = {}
+        for k in DIFF_METRICS:
+            a = {g: [u[k] for u in us if k in u] for g, us in runs[ours].items()}
+            b = {g: [u[k] for u in us if k in u] for g, us in runs[x].items()}
+            d = paired_bootstrap(k, a, b, n_boot=n_boot, seed=seed)
+            if d is not None:
+                row[k] = d.as_dict()
+        if row:
+            out[x] = row
+    return out
 
 
 def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> list[Path]:
     per_garment: dict[str, list[Prediction]] = defaultdict(list)
     for r in runs:
-        p = Prediction(r, which)
+        p = Prediction(r, which, unseen=False)
         per_garment[p.g.name].append(p)
     paths = []
     for name, preds in per_garment.items():
         p0 = preds[0]
-        m = p0.crop(p0.g.mask)
-        top = [label(to_uint8(p0.sketch[0, 0].numpy()), "sketch"),
-               label(to_uint8(p0.visual[0].permute(1, 2, 0).numpy()), "ground truth visual")]
+        ctx = p0.ctx
+        m, scale = ctx.obj, ctx.scale
+        truth_vis = ctx.visual[0].permute(1, 2, 0).numpy()
+        top = [label(to_uint8(ctx.sketch[0, 0].numpy()), "sketch"), label(to_uint8(truth_vis), "ground truth visual")]
         rows = []
-        ft = p0.g.full_tactile
-        if ft is not None:
-            rows.append(output_row("truth", p0.visual[0].permute(1, 2, 0).numpy(), p0.crop(ft.gx), p0.crop(ft.gy),
-                                   m, float(p0.info["friction_scale"])))
+        truth = ctx.truth()
+        if truth is not None:
+            rows.append(output_row("truth", truth_vis, truth[0], truth[1], m, scale))
+        refs = reference_predictions(ctx)
+        flat_vis = refs["mean-colour"][0][0].permute(1, 2, 0).numpy()
+        flat_tac = refs["flat"][1][0].numpy()
+        rows.append(output_row("flat + mean-colour", flat_vis, flat_tac[0], flat_tac[1], m, scale))
+        if "oracle" in refs:
+            o = refs["oracle"][1][0].numpy()
+            rows.append(output_row("oracle", truth_vis, o[0], o[1], m, scale))
         counts = Counter(p.info["method"] for p in preds)
         for p in preds:
             # several runs of one method (seeds): name each row by its run folder too
             name = p.info["method"] if counts[p.info["method"]] == 1 else f"{p.info['method']} ({p.run.name})"
             rows.append(output_row(name, p.vis[0].permute(1, 2, 0).numpy(), p.tac[0, 0].numpy(),
-                                   p.tac[0, 1].numpy(), m, float(p.info["friction_scale"])))
+                                   p.tac[0, 1].numpy(), m, scale))
         path = out_dir / f"sheet_{p0.g.material}.png"
         save_png(path, grid([top] + rows))
         paths.append(path)
     return paths
 
 
-def compare(runs: list[Path], out_dir: Path, which: str = "best") -> tuple[str, dict]:
+def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str = "ours",
+            n_boot: int = 2000) -> tuple[str, dict]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = [evaluate_run(r, which, swap=False) | {"run": str(r)} for r in runs]
-    md, data = table(results)
+    evals = []
+    for r in runs:
+        e = evaluate(r, which, swap=False)
+        e.result["run"] = str(r)
+        evals.append(e)
+    methods = [e.result["method"] for e in evals]
+    if ours not in methods:   # differences are taken against the first run's method then
+        ours = methods[0]
+    with torch.no_grad():
+        diffs = differences(evals, ours, n_boot=n_boot)
+    md, data = table([e.result for e in evals], diffs, ours)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which)]

@@ -12,6 +12,8 @@ import yaml
 from kiosk.config import loader
 from kiosk.contract.graph import GRID_MULTIPLE, is_grid
 from trainer.errors import TrainerError
+from trainer.recipe.diffaug import parse_policy
+from trainer.recipe.schedule import POLICIES
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 
@@ -72,6 +74,11 @@ class LossConfig:
     # linearly from 0 to `tactile_gan` (0 = off).
     tactile_r1: float = 1.0
     tactile_gan_ramp: float = 0.0
+    # DiffAugment on the discriminators' inputs (trainer/recipe/diffaug.py): comma-separated ops from color,
+    # translation, cutout (the authors' `--use_diffaug` policy is all three); "" = off.
+    diffaug: str = field(default="", metadata={"empty_ok": True})
+    # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
+    tactile_texture: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,10 @@ class OptimConfig:
     lr: float = 1e-3
     betas: tuple[float, float] = (0.0, 0.99)
     lr_tactile_d: float = 5e-4
+    # "linear": every rate held, then decayed linearly to zero from `decay_from` (fraction of the schedule) to the
+    # end, as the authors' runs (`lr_policy linear`, n_epochs = n_epochs_decay); "constant": never decayed.
+    lr_policy: str = "linear"
+    decay_from: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -92,6 +103,8 @@ class TrainConfig:
     sample_every: int = 2000
     ckpt_every: int = 2000
     progress: bool = True
+    # Decay of the exponential moving average of G's weights used for validation, evaluation and export; 0 = off.
+    ema: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -168,7 +181,18 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
     if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:
         raise ConfigError(f"loss.tactile_gan_ramp is a fraction of the schedule, 0..1; got {cfg.loss.tactile_gan_ramp}")
-    choices = {("data", "unpaired_sampling"): ("laplacian", "uniform"),
+    if not 0.0 <= cfg.optim.decay_from <= 1.0:
+        raise ConfigError(f"optim.decay_from is a fraction of the schedule, 0..1; got {cfg.optim.decay_from}")
+    if not (cfg.train.ema == 0.0 or 0.0 < cfg.train.ema < 1.0):
+        raise ConfigError(f"train.ema is a decay in (0, 1), or 0 for off; got {cfg.train.ema}")
+    if cfg.loss.tactile_texture < 0:
+        raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
+    try:
+        parse_policy(cfg.loss.diffaug)
+    except ValueError as exc:
+        raise ConfigError(f"loss.diffaug: {exc}") from exc
+    choices = {("optim", "lr_policy"): POLICIES,
+               ("data", "unpaired_sampling"): ("laplacian", "uniform"),
                ("loss", "tactile_d_visual"): ("generated", "real"),
                ("loss", "unpaired_contact"): ("borrowed", "object")}
     for (section, key), allowed in choices.items():

@@ -18,11 +18,19 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
+    p.add_argument("--ours", default="ours", metavar="METHOD",
+                   help="--compare: the method the 'METHOD - X' intervals are taken for (default ours; the first "
+                        "run's method when no run has it)")
+    p.add_argument("--bootstrap", type=int, default=2000, metavar="N",
+                   help="--compare: bootstrap resamples of each interval (default 2000)")
     return p
 
 
 def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
-    args = build_parser(prog).parse_args(argv)
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    if args.bootstrap < 100:
+        parser.error(f"--bootstrap must be at least 100 for a 95 % interval; got {args.bootstrap}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     import torch
     torch.set_num_threads(min(torch.get_num_threads(), 4))
@@ -33,7 +41,7 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         print(json.dumps(result, indent=2))
         return 0
     from trainer.compare import compare
-    md, data = compare(args.compare, args.out, args.which)
+    md, data = compare(args.compare, args.out, args.which, ours=args.ours, n_boot=args.bootstrap)
     if args.json is not None:
         args.json.write_text(json.dumps(data, indent=2))
     print(md)

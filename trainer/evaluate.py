@@ -1,32 +1,246 @@
-"""Evaluate one run: visual reconstruction, held-out tactile patches, full-field tactile (synthetic ground truth),
-pretrained-feature metrics when their weights are configured, and the unseen-sketch swap grid."""
+"""Evaluate one run, with the reference rows beside it (trainer.references: flat, mean-colour, oracle).
+
+What is scored (docs/training.md, "Evaluation protocol"):
+- visual PSNR / SSIM / L1 inside the object mask; LPIPS (VGG weights configured) on the object's bounding box;
+- tactile MSE and angular error on every valid held-out patch centre (trainer.heldout);
+- full-field angular error and friction MAE (synthetic ground truth), also inside / outside the training touch
+  rectangles (outside = what the model had to generalise to);
+- texture statistics (FB-SIFID always, SIFID with Inception weights) on *unseen* sketches (the other garments'
+  sketches and edited ones in the same dataset folder) against this garment's photo and tactile truth; the same
+  figures on the training sketch are reported with a `_seen` suffix;
+- `gap_closed` per tactile metric: (flat - method) / (flat - oracle); None where flat and oracle tie.
+"""
 from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trainer.augment import CropError, eval_crop_origin, resolve_crop
+from trainer.augment import CropError, eval_crop_origin, object_bbox, resolve_crop
+from trainer.bootstrap import Units
 from trainer.checkpoint import CheckpointError, load_generator, read_checkpoint
 from trainer.config import config_from_dict
 from trainer.data.touchclothing import Garment, extract_patches, find_garments, load_garment
-from trainer.metrics import full_field_metrics, l1, psnr, ssim, tactile_patch_metrics
+from trainer.heldout import heldout_errors, touch_rect_mask
+from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
+from trainer.references import object_colour, oracle, paint
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
-from trainer.sheets import grid, label, normal_tile, friction_tile, save_png, to_uint8
+from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
 from trainer.texture_distance import fb_sifid_channels
 
 log = logging.getLogger(__name__)
 
 HIGHER_IS_BETTER = {"visual_psnr", "visual_ssim"}
+# lower is better for each; gap closed = (flat - method) / (flat - oracle)
+GAP_METRICS = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle_deg_inside",
+               "full_angle_deg_outside", "full_friction_mae", "full_friction_mae_inside",
+               "full_friction_mae_outside", "tactile_fbsifid_seen", "full_fbsifid_seen")
+GAP_TIE = 1e-9   # |flat - oracle| at or below this (relative to |flat|) leaves no gap to close
+
+
+@dataclass
+class Unseen:
+    """A sketch the model never trained on, cropped for the network. kind: 'other garment' or 'edited'."""
+
+    name: str
+    kind: str
+    sketch: torch.Tensor
+    mask: torch.Tensor
+
+
+@dataclass
+class Context:
+    """A garment at an evaluation crop: everything needed to score any prediction of it (a run or a reference)."""
+
+    g: Garment
+    side: int
+    origin: tuple[int, int]
+    scale: float
+    sketch: torch.Tensor = field(init=False)
+    mask: torch.Tensor = field(init=False)
+    visual: torch.Tensor = field(init=False)
+    unseen: list[Unseen] = field(default_factory=list)
+
+    def __post_init__(self):
+        self.sketch, self.mask, self.visual = crop_tensors(self.g, self.origin, self.side)
+        self.obj = self.crop(self.g.mask).astype(bool)
+        self.inside = self.crop(touch_rect_mask(self.g, "train")) & self.obj
+        self.patches = extract_patches(self.g, "test", crop_origin=self.origin, crop_size=(self.side, self.side),
+                                       mode="centre")
+        self._oracle = None
+
+    def crop(self, a: np.ndarray) -> np.ndarray:
+        x, y = self.origin
+        return a[y:y + self.side, x:x + self.side]
+
+    def truth(self) -> tuple[np.ndarray, np.ndarray] | None:
+        ft = self.g.full_tactile
+        return None if ft is None else (self.crop(ft.gx), self.crop(ft.gy))
+
+    def oracle(self):
+        if self._oracle is None:
+            self._oracle = oracle(self.g) or False
+        return self._oracle or None
+
+
+def find_unseen(g: Garment, side: int) -> list[Unseen]:
+    """Every other sketch in the garment's dataset folder (other garments, edited sketches) that fits `side`."""
+    try:
+        others = [d for d in find_garments(g.root.parent) if d.resolve() != g.root.resolve()]
+    except Exception:  # noqa: BLE001 - a garment folder given directly has no siblings
+        others = []
+    out = []
+    for d in others:
+        o = load_garment(d, tactile=False)
+        try:
+            s = resolve_crop(side, o.mask, fit=False)
+        except CropError:
+            log.info("eval: %s does not fit a %d px crop; not used as an unseen sketch", d.name, side)
+            continue
+        sk, mk, _ = crop_tensors(o, eval_crop_origin(o.mask, s), s, visual=np.zeros(o.mask.shape + (3,), np.uint8))
+        out.append(Unseen(o.name, "edited" if o.edited else "other garment", sk, mk))
+    return out
+
+
+class Nets:
+    """The pretrained networks the configuration names (LPIPS-VGG, InceptionV3 block 1), when their files exist."""
+
+    def __init__(self, pre):
+        self.lpips = self.inception = None
+        if pre.vgg16 and Path(pre.vgg16).is_file():
+            from trainer.losses.perceptual import Perceptual
+            self.lpips = Perceptual(vgg16_path=pre.vgg16, lpips_lin_path=pre.lpips_lin)
+        else:
+            log.info("eval: no VGG16 weights configured; LPIPS not computed")
+        if pre.inception and Path(pre.inception).is_file():
+            from trainer.models.inception import InceptionBlock1
+            self.inception = InceptionBlock1.from_file(pre.inception)
+        else:
+            log.info("eval: no InceptionV3 weights configured; SIFID not computed (FB-SIFID, weight-free, is "
+                     "reported)")
+
+
+def score(ctx: Context, nets: Nets, vis: torch.Tensor | None, tac: torch.Tensor | None,
+          unseen: list[tuple[torch.Tensor | None, torch.Tensor | None]] | None = None) -> tuple[dict, dict]:
+    """All metrics of one prediction on `ctx`: vis (1, 3, S, S), tac (1, 2, S, S) (either None to skip that
+    modality), `unseen` = its outputs on ctx.unseen in order. Returns (metrics, units per additive metric)."""
+    out: dict = {}
+    units: dict[str, Units] = {}
+    mask = ctx.obj
+    if vis is not None:
+        s, u = visual_scores(vis[0].numpy(), ctx.visual[0].numpy(), mask, ctx.origin)
+        out.update(s)
+        units.update(u)
+        out["visual_fbsifid_seen"] = fb_sifid_channels(vis[0].numpy(), ctx.visual[0].numpy(), mask)
+        if nets.lpips is not None:
+            x0, y0, x1, y1 = object_bbox(mask)
+            with torch.no_grad():
+                out["visual_lpips"] = float(nets.lpips(vis[..., y0:y1, x0:x1], ctx.visual[..., y0:y1, x0:x1]))
+            out["lpips_backbone"] = nets.lpips.kind
+        if nets.inception is not None:
+            from trainer.models.inception import sifid
+            out["visual_sifid_seen"] = sifid(nets.inception, vis, ctx.visual)
+    if tac is not None:
+        gx, gy = tac[0, 0].numpy(), tac[0, 1].numpy()
+        ho = heldout_errors(ctx.g, "test", ctx.origin, ctx.side, gx, gy)
+        out.update(ho.scores())
+        units.update({k: v for k, v in ho.units().items() if len(v)})
+        out.update(_seen_patch_texture(ctx, nets, tac))
+        truth = ctx.truth()
+        if truth is not None:
+            s, u = full_field_scores(gx, gy, truth[0], truth[1], mask, ctx.inside, ctx.scale, ctx.origin)
+            out.update(s)
+            units.update(u)
+            out["full_fbsifid_seen"] = fb_sifid_channels(tac[0].numpy(), np.stack(truth), mask)
+    if unseen:
+        out.update(_unseen_texture(ctx, nets, unseen))
+    return out, units
+
+
+def _seen_patch_texture(ctx: Context, nets: Nets, tac: torch.Tensor) -> dict:
+    """Texture statistics on the held-out patch nearest each test touch's middle (the published per-patch tactile
+    SIFID / LPIPS; the sketch is the training one, hence `_seen`)."""
+    ps = ctx.patches
+    if not len(ps):
+        return {}
+    gx, gy, c = patches_to_tensors(ps, np.arange(len(ps)))
+    fake, real = cut(tac, ps.origin), torch.cat([gx, gy], 1)
+    out = {}
+    cm = c[:, 0].numpy() > 0.5
+    vals = [fb_sifid_channels(fake[k].numpy() * cm[k], real[k].numpy() * cm[k], cm[k]) for k in range(len(fake))]
+    vals = [v for v in vals if np.isfinite(v)]
+    if vals:
+        out["tactile_fbsifid_seen"] = float(np.mean(vals))
+    if nets.lpips is not None:
+        from trainer.losses.perceptual import per_channel
+        with torch.no_grad():
+            out["tactile_lpips"] = float(per_channel(nets.lpips, fake * c, real * c, size=224))
+    if nets.inception is not None:
+        from trainer.models.inception import sifid_channels
+        out["tactile_sifid_seen"] = sifid_channels(nets.inception, fake * c, real * c)
+    return out
+
+
+def _unseen_texture(ctx: Context, nets: Nets, outputs) -> dict:
+    """Mean over unseen sketches of the texture distance between the output (inside the new sketch's mask) and this
+    garment's photo / full-field tactile truth (inside its own mask): does the model keep the fabric on a new shape?"""
+    vis_d, vsifid, tac_d = [], [], []
+    truth = ctx.truth()
+    for u, (vis, tac) in zip(ctx.unseen, outputs):
+        um = u.mask[0, 0].numpy() > 0.5
+        if vis is not None:
+            vis_d.append(fb_sifid_channels(vis[0].numpy(), ctx.visual[0].numpy(), um, ctx.obj))
+            if nets.inception is not None:
+                from trainer.models.inception import sifid
+                vsifid.append(sifid(nets.inception, vis, ctx.visual))
+        if tac is not None and truth is not None:
+            tac_d.append(fb_sifid_channels(tac[0].numpy(), np.stack(truth), um, ctx.obj))
+    out: dict = {}
+    for key, vals in (("visual_fbsifid_unseen", vis_d), ("visual_sifid_unseen", vsifid),
+                      ("full_fbsifid_unseen", tac_d)):
+        vals = [v for v in vals if np.isfinite(v)]
+        if vals:
+            out[key] = float(np.mean(vals))
+    return out
+
+
+def reference_predictions(ctx: Context) -> dict[str, tuple]:
+    """name -> (vis, tac, unseen outputs, extra info) of each reference row this garment allows."""
+    s = ctx.side
+    flat = torch.zeros(1, 2, s, s)
+    refs: dict[str, tuple] = {"flat": (None, flat, [(None, torch.zeros_like(u.mask.expand(-1, 2, -1, -1)))
+                                                    for u in ctx.unseen], {})}
+    colour = object_colour(ctx.visual[0].numpy(), ctx.obj)
+    mc = torch.from_numpy(paint(colour, ctx.obj))[None]
+    mc_unseen = [(torch.from_numpy(paint(colour, u.mask[0, 0].numpy() > 0.5))[None], None) for u in ctx.unseen]
+    refs["mean-colour"] = (mc, None, mc_unseen, {})
+    o = ctx.oracle()
+    if o is not None:
+        tac = torch.from_numpy(np.stack([ctx.crop(o.gx), ctx.crop(o.gy)]))[None]
+        refs["oracle"] = (None, tac, None, {"sensor_blur_px": o.sigma_px, "sensor_fit_mse": o.fit_mse,
+                                            "head_precision": o.precision})
+    return refs
+
+
+def gap_closed(method: dict, flat: dict, oracle_row: dict) -> dict:
+    """(flat - method) / (flat - oracle) per tactile metric the three rows share: 0 = no better than flat, 1 = as
+    good as the oracle. None where flat and oracle tie (no gap to close)."""
+    out = {}
+    for k in GAP_METRICS:
+        if k in method and k in flat and k in oracle_row:
+            den = flat[k] - oracle_row[k]
+            out[k] = float((flat[k] - method[k]) / den) if abs(den) > GAP_TIE * max(abs(flat[k]), 1.0) else None
+    return out
 
 
 class Prediction:
-    """A run's outputs on its garment's evaluation crop, plus what is needed to score and picture them."""
+    """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
-    def __init__(self, run_dir: Path, which: str = "best"):
+    def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which)
         ck = read_checkpoint(self.run, which)
@@ -34,105 +248,71 @@ class Prediction:
         garment_dir = Path(self.cfg.garment)
         if not garment_dir.is_dir():
             raise CheckpointError(f"{self.run}: its garment folder {garment_dir} is gone; cannot evaluate")
-        self.g: Garment = load_garment(garment_dir)
-        self.side = int(self.info["crop"])
-        self.origin = eval_crop_origin(self.g.mask, self.side)
-        self.sketch, self.mask, self.visual = crop_tensors(self.g, self.origin, self.side)
+        g = load_garment(garment_dir)
+        side = int(self.info["crop"])
+        self.ctx = Context(g, side, eval_crop_origin(g.mask, side), float(self.info["friction_scale"]))
+        if unseen:
+            self.ctx.unseen = find_unseen(g, side)
         with torch.no_grad():
-            self.vis, self.tac = self.net(self.sketch, self.mask)
+            self.vis, self.tac = self.net(self.ctx.sketch, self.ctx.mask)
+            self.unseen = [self.net(u.sketch, u.mask) for u in self.ctx.unseen]
 
-    def crop(self, a: np.ndarray) -> np.ndarray:
-        x, y = self.origin
-        return a[y:y + self.side, x:x + self.side]
+    @property
+    def g(self) -> Garment:
+        return self.ctx.g
+
+    @property
+    def seed(self) -> int:
+        return int(self.cfg.train.seed)
 
 
-def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> dict:
-    p = Prediction(run_dir, which)
-    out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": p.side,
-                 "checkpoint": which, "perceptual": (p.info.get("info") or {}).get("perceptual")}
-    out["visual_psnr"] = psnr(p.vis, p.visual)
-    out["visual_ssim"] = ssim(p.vis, p.visual)
-    out["visual_l1"] = l1(p.vis, p.visual)
-    ps = extract_patches(p.g, "test", crop_origin=p.origin, crop_size=(p.side, p.side), mode="centre")
-    patches = None
-    if len(ps):
-        gx, gy, c = patches_to_tensors(ps, np.arange(len(ps)))
-        patches = (cut(p.tac, ps.origin), torch.cat([gx, gy], 1), c)
-        tm = tactile_patch_metrics(patches[0], gx, gy, c)
-        out.update(tactile_mse=tm["tactile_mse"], tactile_angle_deg=tm["tactile_angle_deg"], test_patches=len(ps))
-    ft = p.g.full_tactile
-    if ft is not None:
-        out.update(full_field_metrics(p.tac[0, 0].numpy(), p.tac[0, 1].numpy(), p.crop(ft.gx), p.crop(ft.gy),
-                                      p.crop(p.g.mask), float(p.info["friction_scale"])))
-    pre = p.cfg.pretrained
-    if pre.vgg16 and Path(pre.vgg16).is_file():
-        from trainer.losses.perceptual import Perceptual, per_channel
-        lp = Perceptual(vgg16_path=pre.vgg16, lpips_lin_path=pre.lpips_lin)
-        with torch.no_grad():
-            out["visual_lpips"] = float(lp(p.vis, p.visual))
-            if len(ps):
-                out["tactile_lpips"] = float(per_channel(lp, patches[0] * c, patches[1] * c, size=224))
-        out["lpips_backbone"] = lp.kind
-    else:
-        log.info("eval: no VGG16 weights configured; LPIPS not computed")
-    if pre.inception and Path(pre.inception).is_file():
-        from trainer.models.inception import InceptionBlock1, sifid, sifid_channels
-        net = InceptionBlock1.from_file(pre.inception)
-        out["visual_sifid"] = sifid(net, p.vis, p.visual)
-        if len(ps):
-            out["tactile_sifid"] = sifid_channels(net, patches[0] * c, patches[1] * c)
-    else:
-        log.info("eval: no InceptionV3 weights configured; SIFID not computed (FB-SIFID, weight-free, is reported)")
-    out.update(texture_metrics(p, patches))
+@dataclass
+class Evaluation:
+    """One run's JSON-able result, its per-unit sums, and its garment's reference rows with their units."""
+
+    result: dict
+    units: dict[str, Units]
+    ref_units: dict[str, dict[str, Units]]
+
+
+def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True) -> Evaluation:
+    p = Prediction(run_dir, which, unseen=unseen)
+    ctx = p.ctx
+    nets = Nets(p.cfg.pretrained)
+    out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
+                 "seed": p.seed, "checkpoint": which, "perceptual": (p.info.get("info") or {}).get("perceptual"),
+                 "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
+    metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)
+    out.update(metrics)
+    refs, ref_units = {}, {}
+    for name, (vis, tac, uns, extra) in reference_predictions(ctx).items():
+        refs[name], ref_units[name] = score(ctx, nets, vis, tac, uns)
+        refs[name].update(extra)
+    if "flat" in refs and "oracle" in refs:
+        out["gap_closed"] = gap_closed(out, refs["flat"], refs["oracle"])
+        for name in refs:
+            refs[name]["gap_closed"] = gap_closed(refs[name], refs["flat"], refs["oracle"])
+    out["references"] = refs
     if swap:
         path = swap_grid(p)
         if path is not None:
             out["swap_grid"] = str(path)
-    return out
+    return Evaluation(out, units, ref_units)
 
 
-def texture_metrics(p: Prediction, patches: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None) -> dict:
-    """FB-SIFID (trainer.texture_distance), always: visual per RGB channel over the object, tactile per channel on
-    each held-out patch's contact pixels (`patches` = predicted, true (K, 2, 32, 32) and contact (K, 1, 32, 32)),
-    and over the whole object against the synthetic full-field ground truth."""
-    mask = p.crop(p.g.mask).astype(bool)
-    out = {"visual_fbsifid": fb_sifid_channels(p.vis[0].numpy(), p.visual[0].numpy(), mask)}
-    if patches is not None:
-        fake, real, contact = (t.numpy() for t in patches)
-        cm = contact[:, 0] > 0.5
-        vals = [fb_sifid_channels(fake[k] * cm[k], real[k] * cm[k], cm[k]) for k in range(len(fake))]
-        vals = [v for v in vals if np.isfinite(v)]
-        if vals:
-            out["tactile_fbsifid"] = float(np.mean(vals))
-    ft = p.g.full_tactile
-    if ft is not None:
-        truth = np.stack([p.crop(ft.gx), p.crop(ft.gy)])
-        out["full_fbsifid"] = fb_sifid_channels(p.tac[0].numpy(), truth, mask)
-    return out
+def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> dict:
+    return evaluate(run_dir, which, swap=swap).result
 
 
 def swap_grid(p: Prediction) -> Path | None:
-    """The paper's swap experiment: this garment's model on every other garment's sketch in the same dataset."""
-    try:
-        others = [d for d in find_garments(Path(p.cfg.garment).parent) if d.resolve() != p.g.root.resolve()]
-    except Exception:  # noqa: BLE001 - a garment folder given directly has no siblings
-        others = []
+    """The paper's swap experiment: this garment's model on every other sketch in the same dataset."""
     rows = []
-    for d in others:
-        g = load_garment(d, tactile=False)
-        try:
-            side = resolve_crop(p.side, g.mask, fit=False)
-        except CropError:
-            continue
-        origin = eval_crop_origin(g.mask, side)
-        sk, mk, _ = crop_tensors(g, origin, side, visual=np.zeros(g.mask.shape + (3,), np.uint8))
-        with torch.no_grad():
-            vis, tac = p.net(sk, mk)
+    for u, (vis, tac) in zip(p.ctx.unseen, p.unseen):
         gx, gy = tac[0, 0].numpy(), tac[0, 1].numpy()
-        rows.append([label(to_uint8(sk[0, 0].numpy()), g.material), label(to_uint8(vis[0].permute(1, 2, 0).numpy()),
-                                                                          "visual"),
-                     label(normal_tile(gx, gy), "normal map"), label(friction_tile(gx, gy, float(
-                         p.info["friction_scale"])), "friction map")])
+        rows.append([label(to_uint8(u.sketch[0, 0].numpy()), f"{u.name.removeprefix('singleskit_')[:22]} (unseen)"),
+                     label(to_uint8(vis[0].permute(1, 2, 0).numpy()), "visual"),
+                     label(normal_tile(gx, gy), "normal map"),
+                     label(friction_tile(gx, gy, p.ctx.scale), "friction map")])
     if not rows:
         return None
     path = p.run / "eval" / "swap.png"
@@ -141,9 +321,12 @@ def swap_grid(p: Prediction) -> Path | None:
 
 
 def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
+    """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json."""
+    from trainer.compare import table
     run_dir = Path(run_dir)
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
     (run_dir / "eval" / "metrics.json").write_text(json.dumps(result, indent=2))
+    (run_dir / "eval" / "summary.md").write_text(table([result])[0])
     mpath = run_dir / "metrics.json"
     merged = json.loads(mpath.read_text()) if mpath.is_file() else {}
     merged["eval"] = result

@@ -16,10 +16,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
+from trainer.progress import Progress
+from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.metrics import l1, psnr, tactile_patch_metrics
 from trainer.sampling import GarmentData, cut
 from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_uint8, friction_tile
@@ -49,6 +52,7 @@ class Trainer:
         set_determinism(cfg)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
+        self.method.attach_ema(cfg.train.ema)
         self.val = self.data.eval_set("val")
         self.step = 0
         self.history: list[dict] = []
@@ -66,9 +70,10 @@ class Trainer:
     # --- state ----------------------------------------------------------------------------------------------
     def _payload(self) -> dict:
         m = self.method
-        return {"generator": m.generator.state_dict(), "generator_class": m.generator_class,
+        return {"generator": m.eval_generator.state_dict(), "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
+                "data_profile": self.data.g.profile, "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
                 "crop": self.data.side, "config": self.cfg.to_dict(),
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
@@ -93,7 +98,7 @@ class Trainer:
     # --- validation and pictures ----------------------------------------------------------------------------
     @torch.no_grad()
     def predict(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
-        g = self.method.generator
+        g = self.method.eval_generator
         was = g.training
         g.eval()
         out = g(batch.sketch, batch.mask)
@@ -133,9 +138,7 @@ class Trainer:
         end = min(until if until is not None else t.steps, t.steps)
         bar = None
         if self.main and t.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}",
-                       dynamic_ncols=True)
+            bar = Progress(total=end, initial=self.step, desc=f"{self.cfg.method}:{self.data.g.material}")
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
@@ -149,15 +152,19 @@ class Trainer:
                 log.info("stopped at step %d on request; --resume continues from there", self.step)
                 break
             batch = self.data.batch(self.step, self.rank)
+            o = self.cfg.optim
+            factor = lr_factor(o.lr_policy, self.step, t.steps, o.decay_from)
+            apply_lr(self.method.opts, factor)
             logs = self.method.step(batch, self.step)
+            self.method.after_step(self.step)
+            logs["lr_factor"] = factor
             self.step += 1
             if self.step % t.log_every == 0 or self.step == end:
                 if self.dist is not None:
                     logs = {k: average_scalar(x, self.dist.world) for k, x in logs.items()}
                 self.history.append({"step": self.step, **logs})
                 if bar is not None:
-                    bar.set_postfix({k: f"{x:.3g}" for k, x in logs.items() if k in
-                                     ("g_total", "v_l1", "t_l1", "t_gan", "d_visual", "d_tactile", "l1", "d")})
+                    bar.losses_seen(logs)
             if bar is not None:
                 bar.update(1)
             if self.step % t.val_every == 0 or self.step == end:
@@ -174,7 +181,8 @@ class Trainer:
             bar.close()
         self.train_seconds += time.perf_counter() - t0
         done = self.step - first
-        summary = {"method": self.cfg.method, "garment": self.data.g.name, "step": self.step,
+        summary = {"method": self.cfg.method, "garment": self.data.g.name, "data_profile": self.data.g.profile,
+                   "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0], "step": self.step,
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),

@@ -43,16 +43,23 @@ def frechet(xa: np.ndarray, xb: np.ndarray) -> float:
     return max(d, 0.0)
 
 
-def fb_sifid(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """FB-SIFID between two (H, W) images over `mask` (all pixels when None); NaN with fewer than 2 pixels."""
+def fb_sifid(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
+             mask_b: np.ndarray | None = None) -> float:
+    """FB-SIFID between two (H, W) images over `mask` (all pixels when None); NaN with fewer than 2 pixels.
+
+    `mask_b` selects b's pixels when they differ from a's: texture statistics need no pixel correspondence, so an
+    output on an unseen sketch (its own shape) is compared with the garment's photo over the photo's object.
+    Then a and b may differ in size."""
     fa, fb = filter_bank(a), filter_bank(b)
-    if mask is None:
-        return frechet(fa.reshape(-1, fa.shape[-1]), fb.reshape(-1, fb.shape[-1]))
-    m = np.asarray(mask).astype(bool)
-    return frechet(fa[m], fb[m])
+    ma = None if mask is None else np.asarray(mask).astype(bool)
+    mb = ma if mask_b is None else np.asarray(mask_b).astype(bool)
+    xa = fa.reshape(-1, fa.shape[-1]) if ma is None else fa[ma]
+    xb = fb.reshape(-1, fb.shape[-1]) if mb is None else fb[mb]
+    return frechet(xa, xb)
 
 
-def fb_sifid_channels(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+def fb_sifid_channels(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
+                      mask_b: np.ndarray | None = None) -> float:
     """Mean FB-SIFID over channels of (C, H, W) images (per channel, as the paper's tactile SIFID)."""
-    vals = [fb_sifid(a[c], b[c], mask) for c in range(a.shape[0])]
+    vals = [fb_sifid(a[c], b[c], mask, mask_b) for c in range(a.shape[0])]
     return float(np.mean(vals))

@@ -1,8 +1,8 @@
-"""`vtkiosk bench infer|e2e`: route to the benchmark that owns each measurement.
+"""`vtkiosk bench infer|e2e|haptics`: route to the benchmark that owns each measurement.
 
 `infer` measures bundles (and PyTorch eager beside them, when torch is installed), so it lives on the exporter side;
 `e2e` drives a running kiosk daemon and must never import torch, so it lives in `kiosk/`. Imported lazily for that
-reason.
+reason. `haptics` uses the synthetic fabrics' truth (trainer), so it lives on the exporter side too.
 """
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import importlib
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "infer": ("exporter.bench.infer", "latency, memory and error of a bundle's graphs per size x precision"),
     "e2e": ("kiosk.bench.e2e", "stroke end -> friction frame committed / visual shown, against a live daemon"),
+    "haptics": ("exporter.bench.haptics", "felt texture period, contrast and fabric distinguishability at true scale"),
 }
 
 

@@ -1,6 +1,11 @@
-"""`vtkiosk demo`: the README's main job: the kiosk serving a garment with the emulated haptic screen.
+"""`vtkiosk demo`: the README's main job: the kiosk serving trained garments with the emulated haptic screen.
 
-On first run it builds a demo bundle the way an operator would, with our own commands in child processes:
+By default it serves the committed demo catalogue (`catalogue/`, full-schedule models trained by this repository's
+trainer, see vtkiosk/catalogue.py): on first start each garment's data is regenerated, its model exported to a
+signed int8 bundle with a demo key generated here, and the bundles cached (keyed by the model file, its recipe and
+the exporter's source), so later starts take seconds.
+
+`--quick` instead builds one demo-quality bundle the way an operator would, with our own commands in child processes:
 `vtkiosk data synth` (one synthetic garment), `vtkiosk train --preset demo` (a short schedule: a demo-quality
 model in a few minutes on 2 CPU cores), `vtkiosk export --precision int8` signed with a demo key generated into the
 work folder (0600). The bundle is cached under `out/demo/bundles/<key>/`, keyed by a hash of everything that made
@@ -41,7 +46,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--trusted-keys", type=Path, default=None, help="trusted keys folder for --bundle")
     p.add_argument("--allow-unsigned", action="store_true", help="development only: serve an unsigned --bundle")
     p.add_argument("--port", type=int, default=8765, help="HTTP port on 127.0.0.1 (default 8765; 0: any free)")
-    p.add_argument("--steps", type=int, default=None, help="training steps (default: the demo preset's)")
+    p.add_argument("--quick", action="store_true",
+                   help="serve a 100-step model built here instead of the trained catalogue (CI, smoke tests)")
+    p.add_argument("--steps", type=int, default=None, help="with --quick: training steps (default: the demo preset's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rebuild", action="store_true", help="ignore the cache and build the demo bundle again")
     p.add_argument("--build-only", action="store_true", help="build (or find) the demo bundle, then exit")
@@ -138,14 +145,90 @@ def build_bundle(workdir: Path, *, seed: int = 0, steps: int | None = None, rebu
     return bundle
 
 
+CATALOGUE_SIZES = "256,512,768"
+# the exporter modules a catalogue bundle depends on (the model itself is keyed by its file hash and recipe)
+EXPORT_CODE = tuple(c for c in CODE if c != "trainer") + ("trainer/checkpoint.py", "trainer/models",
+                                                         "trainer/data/touchclothing.py")
+
+
+def _export_key(entry) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps({"version": DEMO_VERSION, "sizes": CATALOGUE_SIZES, "file": entry.sha256,
+                         "recipe": entry.recipe_sha256, "python": sys.version_info[:2]}).encode())
+    for e in EXPORT_CODE:
+        path = ROOT / e
+        for f in (sorted(path.rglob("*.py")) if path.is_dir() else [path] if path.exists() else []):
+            h.update(f.relative_to(ROOT).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
+    """One signed int8 bundle per catalogue garment, exported on first use and cached. Returns the .vtb paths."""
+    from vtkiosk.catalogue import CATALOGUE, load_index, materialise
+
+    workdir = Path(workdir).resolve()
+    entries = load_index(CATALOGUE)
+    signing_key, _ = demo_keys(workdir)
+    todo, bundles = [], []
+    for e in entries:
+        bundle = workdir / "catalogue" / _export_key(e) / f"{e.id}.vtb"
+        bundles.append(bundle)
+        if rebuild or not bundle.is_file():
+            todo.append((e, bundle))
+        else:
+            print(f"demo: reusing {e.display_name} ({bundle.parent.name})")
+    if todo:
+        t0 = time.perf_counter()
+        build = workdir / "build" / "catalogue"
+        shutil.rmtree(build, ignore_errors=True)
+        build.mkdir(parents=True)
+        print(f"demo: exporting {len(todo)} catalogue garment(s) to signed int8 bundles (first start only); "
+              f"log in {build / 'build.log'}", flush=True)
+        procs = []
+        for i, (e, bundle) in enumerate(todo, 1):
+            print(f"demo: [{i}/{len(todo)}] regenerating the data of {e.display_name}", flush=True)
+            run = materialise(e, CATALOGUE, build / "data", build / "runs" / e.id)
+            out = build / f"{e.id}.vtb"
+            cmd = [sys.executable, "-m", "vtkiosk", "export", "--run", str(run), "--out", str(out),
+                   "--precision", "int8", "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
+                   "--display-name", e.display_name]
+            log = open(build / f"{e.id}.log", "wb")
+            procs.append((e, bundle, out, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT),
+                          log))
+            if len(procs) >= 2 or i == len(todo):       # two exports side by side: the two cores
+                for e2, bundle2, out2, proc, lg in procs:
+                    rc = proc.wait()
+                    lg.close()
+                    if rc != 0:
+                        tail = (build / f"{e2.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
+                        raise DemoError(f"exporting {e2.id} failed (exit {rc}):\n  " + "\n  ".join(tail))
+                    bundle2.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.move(str(out2), bundle2)
+                    print(f"demo: {e2.display_name} exported", flush=True)
+                procs = []
+        keep = {b.parent.name for b in bundles}
+        for other in (workdir / "catalogue").iterdir():
+            if other.name not in keep:
+                shutil.rmtree(other, ignore_errors=True)
+        shutil.rmtree(build, ignore_errors=True)
+        print(f"demo: catalogue ready in {time.perf_counter() - t0:.0f} s", flush=True)
+    return bundles
+
+
 def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
     args = build_parser(prog).parse_args(argv)
     workdir = args.workdir.resolve()
+    if args.steps is not None and not args.quick:
+        raise DemoError("--steps sets the --quick build's schedule; add --quick (the catalogue is already trained)")
     if args.bundle is not None:
-        bundle = args.bundle.resolve()
+        bundles = [args.bundle.resolve()]
         trusted = args.trusted_keys.resolve() if args.trusted_keys else None
+    elif args.quick:
+        bundles = [build_bundle(workdir, seed=args.seed, steps=args.steps, rebuild=args.rebuild)]
+        _, trusted = demo_keys(workdir)
     else:
-        bundle = build_bundle(workdir, seed=args.seed, steps=args.steps, rebuild=args.rebuild)
+        bundles = build_catalogue(workdir, rebuild=args.rebuild)
         _, trusted = demo_keys(workdir)
     if args.build_only:
         return 0
@@ -158,7 +241,7 @@ def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
     if trusted is not None:
         store["trusted_keys"] = str(trusted)
     config = load_config(None, {
-        "bundles": [str(bundle)], "store": store, "state_dir": str(workdir / "state"),
+        "bundles": [str(b) for b in bundles], "store": store, "state_dir": str(workdir / "state"),
         "server": {"host": "127.0.0.1", "port": args.port},
         "device": {"type": "emulated", "report_size": 1024, "emulator": {"link": "hs-hid"}},
         "log_level": "WARNING"})

@@ -281,7 +281,9 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                         else:
                             test = _session(c.path, c.provider, args.threads)
                         if ref_out is not None:
-                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale))
+                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale,
+                                                       normalization=m.friction_normalization,
+                                                       constants=m.friction_constants or None))
                         if truth is not None and "tactile" in outputs:
                             from exporter.bench.truth import field_errors
                             feed = feeds(truth.input.sketch, truth.input.mask)

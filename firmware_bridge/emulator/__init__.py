@@ -28,7 +28,7 @@ class DeviceEmulator:
             raise ValueError(f"emulator link must be one of {sorted(LINK_MODELS)}, got {self.config.link!r}")
         self.clock = clock or (VirtualClock() if self.config.modelled_time else RealClock())
         self.vid, self.pid = vid, pid
-        self.controller = Controller(self.config, self.clock)
+        self.controller = Controller(self.config, self.clock, report_size)
         self.link = EmulatedLink(self.controller, report_size, pad, self.config.faults, self.clock,
                                  LINK_MODELS[self.config.link])
 

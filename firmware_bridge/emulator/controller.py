@@ -35,9 +35,10 @@ class _Pending:
 class Controller:
     """Protocol state machine of the device. `handle(message_bytes) -> reply bytes or None`."""
 
-    def __init__(self, config: EmulatorConfig, clock) -> None:
+    def __init__(self, config: EmulatorConfig, clock, report_size: int | None = None) -> None:
         self.config = config
         self.clock = clock
+        self.report_size = report_size   # the link's report size, which HELLO must match (None: not checked)
         self.grid = Grid(config.panel_w, config.panel_h, config.tile_w, config.tile_h)
         major, minor, patch = (int(p) for p in config.firmware.split("."))
         self._fw = (major, minor, patch)
@@ -107,6 +108,9 @@ class Controller:
     def _on_hello(self, msg: P.Hello):
         if not msg.min_version <= P.VERSION <= msg.max_version:
             return self._nack(msg, P.NackCode.BAD_VERSION)
+        if self.report_size is not None and msg.report_size != self.report_size:
+            # Small messages survive a size mismatch, tiles do not: refuse here, saying the size this side uses.
+            return self._nack(msg, P.NackCode.BAD_VALUE, self.report_size)
         self.pending = None  # a new session never inherits a half-sent frame
         return self.info(msg.seq)
 

@@ -8,6 +8,7 @@ temporary folder and nothing is written anywhere else.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import shutil
@@ -19,12 +20,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kiosk.bundle.manifest import PATH_RE, BundleError, Manifest, parse_manifest
+from kiosk.bundle.manifest import MAX_MANIFEST_BYTES, PATH_RE, BundleError, Manifest, parse_manifest
 from kiosk.bundle.signature import verify_signature
 
 MANIFEST = "manifest.yaml"
 SIGNATURE = "manifest.sig"
 SUFFIX = ".vtb"
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)   # the disk (or a quota, or a file size limit) is full
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,9 @@ def safe_extract(archive: Path, dest: Path, limits: ArchiveLimits = ArchiveLimit
     except (tarfile.TarError, EOFError, OSError) as exc:
         if isinstance(exc, FileExistsError):
             raise BundleError(f"bundle member collides with another: {exc.filename}") from exc
+        if isinstance(exc, OSError) and exc.errno in NO_SPACE:
+            raise BundleError(f"no space left to unpack {archive.name} into {dest} ({exc.strerror}); free disk "
+                              "space and try again (nothing was installed)") from None
         raise BundleError(f"{archive.name} is not a readable bundle archive ({exc})") from exc
     return files
 
@@ -145,21 +150,25 @@ def _listed_files(root: Path) -> set[str]:
 
 
 def verify_directory(root: Path, trusted: dict | None, *, allow_unsigned: bool = False) -> Bundle:
-    """Check an unpacked bundle: manifest schema, signature, the exact file set and every hash."""
+    """Check an unpacked bundle: signature over the manifest's bytes, then the manifest schema, the exact file set
+    and every hash. The signature comes first so that an unsigned or foreign archive never reaches the YAML
+    parser: only bytes a trusted key signed are parsed."""
     root = Path(root)
     mpath, spath = root / MANIFEST, root / SIGNATURE
     if not mpath.is_file():
         raise BundleError(f"bundle has no {MANIFEST}")
+    if mpath.stat().st_size > MAX_MANIFEST_BYTES:
+        raise BundleError(f"{MANIFEST} is {mpath.stat().st_size} bytes; the limit is {MAX_MANIFEST_BYTES}")
     manifest_bytes = mpath.read_bytes()
-    manifest = parse_manifest(manifest_bytes)
     kid = None
     if trusted:
         if not spath.is_file():
-            raise BundleError(f"bundle {manifest.garment_id} is not signed (no {SIGNATURE})")
+            raise BundleError(f"bundle is not signed (no {SIGNATURE})")
         kid = verify_signature(manifest_bytes, spath.read_bytes(), trusted)
     elif not allow_unsigned:
         raise BundleError("no trusted keys configured: cannot check the bundle's signature "
                           "(give --trusted-keys DIR, or --allow-unsigned for development)")
+    manifest = parse_manifest(manifest_bytes)
     present = _listed_files(root) - {MANIFEST, SIGNATURE}
     listed = set(manifest.files)
     if listed - present:

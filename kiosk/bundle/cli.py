@@ -7,26 +7,62 @@ The store's location, the trusted keys and the daemon's control socket come from
 store atomically, then ask the running daemon to reload; if the daemon refuses the new version (it failed to load
 or to answer its probe within the latency budget), the store is switched back and the command fails with the
 daemon's reason. With no daemon running, the switch stands and the daemon serves it when it starts.
+
+`install` and `activate` refuse a version older than the garment's newest installed one (see
+`kiosk.bundle.version` for the order) unless `--allow-downgrade`; `rollback` is the explicit way back. Refusals and
+allowed downgrades are logged to the systemd journal where the machine has one; the terminal gets one line.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import logging
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 
+from kiosk.contract.errors import KioskError
+from kiosk.contract.garment import garment_id
+
 DEFAULT_CONFIG = Path("/etc/vtkiosk/kiosk.yaml")
 DEFAULT_STORE = Path("/var/lib/vtkiosk/bundles")
 DEFAULT_CONTROL = Path("/run/vtkiosk/control.sock")
+JOURNAL_SOCKET = Path("/run/systemd/journal/socket")
 
 
-def _summary(bundle) -> str:
+def _panel(args) -> tuple[float, str]:
+    """The panel pitch (mm/px) to show a bundle against, and where it came from: --panel-pitch-mm, else the
+    kiosk config's panel (--config, or the default config file when present), else the default known panel."""
+    if getattr(args, "panel_pitch_mm", None) is not None:
+        v = float(args.panel_pitch_mm)
+        if not (0.01 <= v <= 10.0):
+            from kiosk.contract.errors import InputError
+
+            raise InputError(f"--panel-pitch-mm must be from 0.01 to 10 mm per pixel; got {args.panel_pitch_mm}")
+        return v, "--panel-pitch-mm"
+    from kiosk.service.config import PanelConfig, load_config
+
+    path = args.config if getattr(args, "config", None) is not None else (
+        DEFAULT_CONFIG if DEFAULT_CONFIG.is_file() else None)
+    if path is not None:
+        panel = load_config(path).panel
+        return panel.pitch_mm, f"{panel.model or 'panel'} in {path}"
+    panel = PanelConfig()
+    return panel.pitch_mm, f"{panel.model} (default panel)"
+
+
+def _summary(bundle, panel: tuple[float, str] | None = None) -> str:
     m = bundle.manifest
+    consts = ", ".join(f"{k} {v:.4g}" for k, v in sorted(m.friction_constants.items()))
     lines = [f"bundle      {m.garment_id} ({m.display_name}) model {m.model_version}, method {m.method}",
              f"created     {m.created_at} by exporter {m.exporter_version}",
-             f"friction    scale {m.friction_scale:g} ({m.friction_normalization}), pitch {m.pixel_pitch_mm} mm/px",
+             f"friction    {m.friction_normalization} mapping, scale {m.friction_scale:g}"
+             + (f"; constants {consts}" if consts else ""),
+             f"pitch       bundle {m.pixel_pitch_mm:.4g} mm/px (what its model learned at)"
+             + (f"; panel {panel[0]:.4g} mm/px ({panel[1]}): inferred at {panel[0] / m.pixel_pitch_mm:.3f} "
+                f"model px per screen px" if panel else ""),
              f"panel       {m.panel_size[0]}x{m.panel_size[1]}",
              f"signed by   {bundle.key_id or 'NOT CHECKED'}"]
     for kind, g in m.graphs.items():
@@ -49,7 +85,7 @@ def _inspect_or_verify(args) -> int:
     workdir = Path(tempfile.mkdtemp(prefix="vtkiosk-bundle-"))
     try:
         bundle = open_bundle(args.file, trusted, workdir=workdir, allow_unsigned=allow_unsigned)
-        print(_summary(bundle))
+        print(_summary(bundle, _panel(args)))
         if args.action == "verify":
             from kiosk.bundle.probe import probe_bundle
 
@@ -63,6 +99,10 @@ def _inspect_or_verify(args) -> int:
 
 
 # -- the store ---------------------------------------------------------------------------------------------------
+
+class StoreMissing(KioskError):
+    """`bundle list` on a folder that holds no store: a typo, not an empty kiosk."""
+
 
 class _Settings:
     """Store root, trusted keys, unsigned policy and control socket: options over the kiosk config over defaults."""
@@ -93,6 +133,9 @@ def _precision_text(precisions: dict[str, str]) -> str:
 
 
 def _list(settings: _Settings, as_json: bool) -> int:
+    if not Path(settings.root).is_dir():
+        raise StoreMissing(f"no bundle store at {settings.root} (install a bundle there first, or name the store "
+                           "with --store or store.root in the config)")
     items = settings.store().list()
     if as_json:
         print(json.dumps([s.to_json() for s in items], indent=1))
@@ -143,7 +186,7 @@ def _switch(settings: _Settings, args, action: str) -> int:
     store = settings.store(args.threads)
     before = {g: store.links(g) for g in store.active()}
     if action == "activate":
-        now = store.activate(args.garment, args.version)
+        now = store.activate(args.garment, args.version, allow_downgrade=args.allow_downgrade)
     else:
         now = store.rollback(args.garment)
     old = before.get(now.garment)
@@ -167,7 +210,7 @@ def _store_action(args) -> int:
     store = settings.store(args.threads)
     if args.action == "install":
         for f in args.files:
-            s = store.install(f)
+            s = store.install(f, allow_downgrade=args.allow_downgrade)
             print(f"installed {s.garment} {s.version} (signed by {s.key_id or 'nobody: UNSIGNED'}, "
                   f"{_precision_text(s.precisions)}) into {s.path}")
             if args.activate:
@@ -195,6 +238,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         p.add_argument("--trusted-keys", type=Path, default=None, help="folder of trusted *.pub keys")
         p.add_argument("--allow-unsigned", action="store_true", help="development only: skip the signature")
         p.add_argument("--threads", type=int, default=2)
+        p.add_argument("--config", type=Path, default=None,
+                       help=f"kiosk config whose panel the bundle's pitch is shown against (default {DEFAULT_CONFIG} "
+                            "if present, else the default known panel)")
+        p.add_argument("--panel-pitch-mm", type=float, default=None, help="show against this panel pitch instead")
 
     def store_parser(name: str, text: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text, description=text)
@@ -211,15 +258,20 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = store_parser("install", "verify bundles (signature, hashes, ORT probe) and add them to the store")
     p.add_argument("files", type=Path, nargs="+")
     p.add_argument("--activate", action="store_true", help="activate each one after installing it")
+    p.add_argument("--allow-downgrade", action="store_true",
+                   help="install (and activate) a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="with --activate: do not tell the daemon")
     p = store_parser("list", "installed versions: active, previous, signing key, precision")
     p.add_argument("--json", action="store_true")
     p = store_parser("activate", "make a version the active one and tell the daemon")
     p.add_argument("garment")
     p.add_argument("version")
+    p.add_argument("--allow-downgrade", action="store_true",
+                   help="activate a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
     p = store_parser("rollback", "go back to the previous version and tell the daemon")
     p.add_argument("garment")
+    p.set_defaults(allow_downgrade=True)   # rolling back is the operator's explicit step back
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
     p = store_parser("remove", "delete an installed version (not the active one)")
     p.add_argument("garment")
@@ -227,8 +279,24 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     return parser
 
 
+def _log_store_decisions() -> None:
+    """The store's decisions (a refused downgrade above all) go to the journal where the machine has one, so they
+    are on record however the command was run; the terminal gets the one-line result only."""
+    if logging.getLogger().handlers:
+        return   # logging is set up already (a daemon or a test runs us)
+    if JOURNAL_SOCKET.exists() and importlib.util.find_spec("systemd") is not None:
+        from kiosk.ops.logsetup import configure_logging
+
+        configure_logging(level="INFO", journal=True)
+    else:
+        logging.getLogger("kiosk.bundle").addHandler(logging.NullHandler())
+
+
 def main(argv: list[str], prog: str = "vtkiosk bundle") -> int:
     args = build_parser(prog).parse_args(argv)
+    if getattr(args, "garment", None):
+        args.garment = garment_id(args.garment)   # DenimShorts and the dataset folder name work too
     if args.action in ("inspect", "verify"):
         return _inspect_or_verify(args)
+    _log_store_decisions()
     return _store_action(args)

@@ -2,7 +2,12 @@
 
 The exporter writes what this module reads (it calls `dump_manifest`), so the two can never drift. Parsing is
 strict because a manifest arrives from outside the kiosk: YAML aliases, tags and any type beyond plain scalars,
-lists and mappings are refused, unknown keys are refused, and every field is type-checked.
+lists and mappings are refused, unknown keys are refused, nesting is bounded, and every field is type-checked.
+
+`model.version` follows the grammar and ordering of `kiosk.bundle.version` (e.g. "2026.11.21-1" < "2026.11.22-1",
+"1.9" < "1.10"): the store refuses to install or activate a version below a garment's newest installed one.
+The exporter writes `model.source_run` without the build machine's paths (a path relative to the runs folder, or
+`sha256:<hex>` of the run's location when it lies outside it); older bundles with an absolute path still load.
 """
 from __future__ import annotations
 
@@ -12,11 +17,14 @@ from typing import Any
 
 import yaml
 
-from kiosk.contract.errors import KioskError
+from kiosk.bundle.version import VersionError, parse_version
+from kiosk.contract.errors import InputError, KioskError
 from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS
+from kiosk.contract.haptics import NORMALIZATIONS, check_constants
 
 SCHEMA_VERSION = 1
 MAX_MANIFEST_BYTES = 1 << 20
+MAX_DEPTH = 12   # the schema nests 4 deep (graphs.<kind>.sizes[i]); room to spare, far from Python's recursion limit
 PRECISIONS = ("fp32", "fp16", "int8")
 _ID_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
@@ -58,6 +66,9 @@ class Manifest:
     metrics: dict[str, float] = field(default_factory=dict)
     errors: dict[str, dict[str, float]] = field(default_factory=dict)
     provenance: dict[str, str] = field(default_factory=dict)
+    # The friction mapping's constants beyond `friction_scale` (the `perceptual` mapping's); empty for bundles
+    # written before they existed, which keep their mapping's behaviour (calibrated or quantile).
+    friction_constants: dict[str, float] = field(default_factory=dict)
 
     def graph(self, kind: str) -> GraphSpec:
         if kind not in self.graphs:
@@ -69,6 +80,16 @@ class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that refuses aliases/anchors and explicit tags: a manifest is plain data."""
 
     def compose_node(self, parent, index):  # type: ignore[override]
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise BundleError(f"manifest nests deeper than {MAX_DEPTH} levels (line "
+                                  f"{self.peek_event().start_mark.line + 1}); a manifest is shallow plain data")
+            return self._compose_checked(parent, index)
+        finally:
+            self._depth -= 1
+
+    def _compose_checked(self, parent, index):
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()
             raise BundleError(f"manifest uses a YAML alias at line {event.start_mark.line + 1}; aliases are "
@@ -149,6 +170,11 @@ def manifest_from_dict(doc: Any) -> Manifest:
     _only_keys(garment, {"id", "display_name"}, "garment")
     model = _mapping(doc, "model")
     _only_keys(model, {"version", "method", "source_run", "checkpoint_sha256"}, "model")
+    try:
+        parse_version(model.get("version"))
+    except VersionError as exc:
+        raise BundleError(f"manifest: model.{exc}") from None
+    source_run = _str(model, "source_run", where="model.")   # bundles exported before 0.2 carry absolute paths
     graphs_doc = _mapping(doc, "graphs")
     _need(bool(graphs_doc), "graphs must name at least one graph")
     graphs: dict[str, GraphSpec] = {}
@@ -165,9 +191,14 @@ def manifest_from_dict(doc: Any) -> Manifest:
         graphs[kind] = GraphSpec(_str(spec, "file", PATH_RE, f"graphs.{kind}."), precision, list(outputs),
                                  [_size(s, f"graphs.{kind}.sizes entry") for s in sizes])
     haptics = _mapping(doc, "haptics")
-    _only_keys(haptics, {"friction_scale", "normalization", "pixel_pitch_mm"}, "haptics")
+    _only_keys(haptics, {"friction_scale", "normalization", "pixel_pitch_mm", "constants"}, "haptics")
     normalization = _str(haptics, "normalization", where="haptics.")
-    _need(normalization in ("calibrated", "quantile"), "haptics.normalization must be 'calibrated' or 'quantile'")
+    _need(normalization in NORMALIZATIONS, f"haptics.normalization must be one of {', '.join(NORMALIZATIONS)}")
+    constants = _flat_numbers(haptics.get("constants", {}), "haptics.constants")
+    try:
+        check_constants(normalization, constants)
+    except InputError as exc:
+        raise BundleError(f"manifest: haptics.constants: {exc}") from None
     panel = _mapping(doc, "panel")
     _only_keys(panel, {"size"}, "panel")
     assets = _mapping(doc, "assets")
@@ -196,7 +227,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         method=_str(model, "method", where="model."),
         created_at=_str(doc, "created_at"),
         exporter_version=_str(doc, "exporter_version"),
-        source_run=_str(model, "source_run", where="model."),
+        source_run=source_run,
         checkpoint_sha256=_str(model, "checkpoint_sha256", _SHA_RE, "model."),
         graphs=graphs,
         friction_scale=_num(haptics, "friction_scale", "haptics.", positive=True),
@@ -208,6 +239,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         metrics=_flat_numbers(doc.get("metrics", {}), "metrics"),
         errors={str(k): _flat_numbers(v, f"errors.{k}") for k, v in errors_doc.items()},
         provenance=dict(provenance),
+        friction_constants=constants,
     )
 
 
@@ -221,12 +253,20 @@ def parse_manifest(data: bytes) -> Manifest:
     except UnicodeDecodeError as exc:
         raise BundleError("manifest is not UTF-8 text") from exc
     except yaml.YAMLError as exc:
-        raise BundleError(f"manifest is not valid YAML: {exc}") from exc
+        raise BundleError(f"manifest is not valid YAML: {' '.join(str(exc).split())}") from None
+    except RecursionError:
+        raise BundleError("manifest nests too deeply to be a manifest") from None
+    except ValueError as exc:   # e.g. an integer of thousands of digits
+        raise BundleError(f"manifest holds a value YAML cannot read ({' '.join(str(exc).split())[:120]})") from None
     return manifest_from_dict(doc)
 
 
 def manifest_to_dict(m: Manifest) -> dict:
     """The document form of a manifest, in a stable key order (what `dump_manifest` writes)."""
+    haptics: dict[str, Any] = {"friction_scale": m.friction_scale, "normalization": m.friction_normalization,
+                               "pixel_pitch_mm": m.pixel_pitch_mm}
+    if m.friction_constants:  # absent in bundles that have none, so their canonical bytes stay what was signed
+        haptics["constants"] = dict(sorted(m.friction_constants.items()))
     return {
         "schema_version": m.schema_version,
         "garment": {"id": m.garment_id, "display_name": m.display_name},
@@ -235,8 +275,7 @@ def manifest_to_dict(m: Manifest) -> dict:
         "created_at": m.created_at,
         "exporter_version": m.exporter_version,
         "graphs": {k: asdict(g) for k, g in m.graphs.items()},
-        "haptics": {"friction_scale": m.friction_scale, "normalization": m.friction_normalization,
-                    "pixel_pitch_mm": m.pixel_pitch_mm},
+        "haptics": haptics,
         "panel": {"size": list(m.panel_size)},
         "assets": dict(m.assets),
         "metrics": dict(m.metrics),

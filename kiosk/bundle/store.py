@@ -14,6 +14,10 @@ checked (schema, signature against the trusted keys, the exact file set, every h
 only then renamed to `<garment>/<version>`. A crash at any point leaves either nothing or the complete bundle.
 The daemon serves `current` of every garment; `vtkiosk bundle activate` switches it and asks the daemon to reload
 (the daemon loads beside, probes, swaps or keeps the old one).
+
+Versions only go forward: installing or activating a version that ranks below the garment's newest installed one
+(`kiosk.bundle.version` defines the order) is refused unless the operator says `allow_downgrade`, so a signed but
+old bundle cannot quietly replace a newer one. `rollback` is the operator's explicit step back and needs no flag.
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ import contextlib
 import errno
 import fcntl
 import json
+import logging
 import os
 import re
 import secrets
@@ -31,15 +36,16 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from kiosk.bundle.archive import MANIFEST, ArchiveLimits, Bundle, safe_extract, sha256_file, verify_directory
+from kiosk.bundle.archive import MANIFEST, NO_SPACE, ArchiveLimits, Bundle, safe_extract, sha256_file, verify_directory
 from kiosk.bundle.durable import fsync_dir
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import BundleError
 from kiosk.bundle.signature import load_trusted_keys
+from kiosk.bundle.version import VERSION_RE, newest, parse_version
 
+log = logging.getLogger(__name__)
 CURRENT, PREVIOUS, META, INCOMING, LOCK = "current", "previous", ".meta", ".incoming", ".lock"
-VERSION_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,63}$")
-GARMENT_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
+GARMENT_RE = re.compile(r"\A[a-z0-9][a-z0-9._-]{0,63}\Z")
 RESERVED = {CURRENT, PREVIOUS}
 
 
@@ -49,6 +55,10 @@ class StoreError(KioskError):
 
 class StoreBusyError(StoreError):
     """Another bundle operation holds the store lock."""
+
+
+class DowngradeError(StoreError):
+    """A version older than the garment's newest installed one, without `allow_downgrade`."""
 
 
 @dataclass(frozen=True)
@@ -247,9 +257,27 @@ class BundleStore:
         return bundle
 
     # -- changing ----------------------------------------------------------------------------------------------
-    def install(self, archive: Path, *, activate_if_first: bool = False) -> StoredBundle:
+    def _refuse_downgrade(self, garment: str, version: str, action: str, allow_downgrade: bool) -> None:
+        """Raise DowngradeError (and log it) when `version` ranks below the newest installed version of `garment`
+        (other than itself)."""
+        others = [v for v in self._versions(garment) if v != version]
+        top = newest(others)
+        if top is None or not parse_version(version).key < parse_version(top).key:
+            return
+        if allow_downgrade:
+            log.warning("%s %s %s although %s is installed (downgrade allowed by the operator)", action, garment,
+                        version, top, extra={"GARMENT": garment, "VERSION": version, "NEWEST": top})
+            return
+        msg = (f"refusing to {action} {garment} {version}: it is older than the installed {top} "
+               f"(give --allow-downgrade to do it anyway, or roll back with `vtkiosk bundle rollback {garment}`)")
+        log.warning(msg, extra={"GARMENT": garment, "VERSION": version, "NEWEST": top})
+        raise DowngradeError(msg)
+
+    def install(self, archive: Path, *, activate_if_first: bool = False,
+                allow_downgrade: bool = False) -> StoredBundle:
         """Verify `archive` (a .vtb file or an unpacked folder) and add it to the store, inactive (or active when
-        `activate_if_first` and the garment has no active version yet)."""
+        `activate_if_first` and the garment has no active version yet). A version older than the garment's newest
+        installed one is refused unless `allow_downgrade`."""
         archive = Path(archive)
         if not archive.exists():
             raise StoreError(f"{archive}: no such bundle")
@@ -273,6 +301,8 @@ class BundleStore:
                 if not VERSION_RE.match(m.model_version) or m.model_version in RESERVED:
                     raise StoreError(f"bundle version {m.model_version!r} cannot name a store folder "
                                      "(letters, digits, '.', '_', '+', '-'; at most 64)")
+                if m.garment_id in self._garments():
+                    self._refuse_downgrade(m.garment_id, m.model_version, "install", allow_downgrade)
                 gdir = self.root / m.garment_id
                 dest = gdir / m.model_version
                 if dest.exists() or dest.is_symlink():
@@ -297,6 +327,12 @@ class BundleStore:
                 if activate_if_first and self._link(m.garment_id, CURRENT) is None:
                     self._set_link(m.garment_id, CURRENT, m.model_version)
                     self._adopt(gdir / CURRENT)
+            except OSError as exc:
+                if exc.errno in NO_SPACE:
+                    raise StoreError(f"no space left in the bundle store {self.root} to install {archive.name} "
+                                     f"({exc.strerror}); free disk space and try again (nothing was "
+                                     "installed)") from None
+                raise
             finally:
                 shutil.rmtree(work, ignore_errors=True)
                 meta_tmp.unlink(missing_ok=True)
@@ -328,13 +364,15 @@ class BundleStore:
             os.replace(tmp, link)
         fsync_dir(gdir)
 
-    def activate(self, garment: str, version: str) -> StoredBundle:
+    def activate(self, garment: str, version: str, *, allow_downgrade: bool = False) -> StoredBundle:
         """Make `version` the active one (the old active becomes `previous`). Re-verifies the stored copy first
-        (signature and hashes), so a bundle damaged on disk is never activated."""
+        (signature and hashes), so a bundle damaged on disk is never activated. A version older than the garment's
+        newest installed one is refused unless `allow_downgrade` (`rollback` is the way back)."""
         with self._locked():
             target = self.get(garment, version)
             if target.active:
                 return target
+            self._refuse_downgrade(garment, version, "activate", allow_downgrade)
             self.verify(target.path, probe=False)
             cur = self._link(garment, CURRENT)
             if cur is not None:

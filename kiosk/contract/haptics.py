@@ -14,6 +14,7 @@ Conventions
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
@@ -28,7 +29,27 @@ MIN_FRICTION_SCALE = 1e-4
 # Largest |slope| `gradients_from_normals` returns where the normal lies (almost) in the image plane.
 DEFAULT_MAX_SLOPE = 100.0
 
-Normalization = Literal["calibrated", "quantile"]
+Normalization = Literal["calibrated", "quantile", "perceptual"]
+NORMALIZATIONS: tuple[str, ...] = ("calibrated", "quantile", "perceptual")
+
+# -- the perceptual friction scale (docs/haptics.md has the sources and the reasoning) -------------------------------
+# Electroadhesion adds a normal force that grows with the square of the drive voltage, and the vendor defines a
+# friction level as proportional added friction (0 = natural, 255 = the most the hardware adds). A difference
+# threshold of 1.21 dB in drive amplitude (Ryu et al. 2018, Sci. Rep. 8:4555) is therefore a factor
+# 10^(2 * 1.21 / 20) = 1.32 in friction level: one just-noticeable step (Weber's law above the threshold).
+JND_VOLTAGE_DB = 1.21
+JND_RATIO = float(10.0 ** (2.0 * JND_VOLTAGE_DB / 20.0))
+# The lowest level a finger tells from natural friction. No TanvasTouch figure is published; 10/255 (-28 dB of the
+# force range) is our stated assumption, stored in every perceptual bundle so a measured value can replace it.
+THRESHOLD_LEVEL = 10.0
+PERCEPTUAL_DEFAULTS: dict[str, float] = {
+    "threshold_level": THRESHOLD_LEVEL,  # level of the first felt step (detection threshold)
+    "jnd_ratio": JND_RATIO,              # level ratio of one just-noticeable step
+    "steps_low": 3.0,                    # the fabric's lower quartile sits this many steps above the threshold
+    "steps_span": 5.0,                   # ... and its upper quartile this many steps higher
+    "floor_slope": 0.002,                # slopes below this are flat: natural friction, never stretched
+    "steps_per_octave": 4.0,             # at most this many steps per doubling of slope above the floor
+}
 
 
 @dataclass
@@ -58,6 +79,9 @@ def _finite(arr: np.ndarray, dtype: type, counter: NonFiniteCounter | None) -> n
             if counter is not None:
                 counter.count += int(bad.sum())
             arr = np.where(bad, 0, arr)
+        big = np.finfo(dtype).max if np.issubdtype(dtype, np.floating) else None
+        if big is not None and np.finfo(arr.dtype).max > big:
+            arr = np.clip(arr, -big, big)  # a finite float64 beyond float32's range must not become Inf
     return np.ascontiguousarray(arr, dtype=dtype)
 
 
@@ -201,8 +225,90 @@ def _min_max(a: np.ndarray) -> np.ndarray:
     return (a - lo) / rng
 
 
+def jnd_steps(levels: object, *, threshold_level: float = THRESHOLD_LEVEL,
+              jnd_ratio: float = JND_RATIO) -> np.ndarray:
+    """Friction levels (0..255) -> just-noticeable steps above natural friction: 0 at or below the detection
+    threshold, then log(level / threshold) / log(jnd_ratio) (Weber's law). Shape: any -> same, float64."""
+    if not (threshold_level > 0 and jnd_ratio > 1 and np.isfinite(threshold_level) and np.isfinite(jnd_ratio)):
+        raise InputError(f"threshold_level must be > 0 and jnd_ratio > 1; got {threshold_level}, {jnd_ratio}")
+    lv = np.nan_to_num(np.asarray(levels, dtype=np.float64), nan=0.0, posinf=255.0, neginf=0.0)
+    return np.log(np.maximum(lv, threshold_level) / threshold_level) / np.log(jnd_ratio)
+
+
+def perceptual_constants(gx: object, gy: object, mask: object | None = None,
+                         **overrides: float) -> dict[str, float]:
+    """The `perceptual` mapping's constants for one garment, from its training gradients (contact pixels).
+
+    The lower and upper quartiles of gx^2 + gy^2 describe the plain fabric: seams, pockets and edges cover a few
+    per cent of a garment, so they move the quartiles little and are left to saturate. Quartiles below the flat
+    floor are lifted to it, so a flat garment keeps its noise at natural friction. Stored in the bundle.
+    """
+    c = dict(PERCEPTUAL_DEFAULTS)
+    for k, v in overrides.items():
+        if k not in c:
+            raise InputError(f"unknown perceptual constant {k!r} (known: {', '.join(sorted(c))})")
+        c[k] = float(v)
+    ax, ay = sanitize_gradients(gx, gy, dtype=np.float64)
+    gz = ax * ax + ay * ay
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != gz.shape:
+            raise InputError(f"mask must have the gradients' shape {gz.shape}; got {m.shape}")
+        gz = gz[m.astype(bool)]
+    floor = c["floor_slope"] ** 2
+    lo, hi = (np.quantile(gz, (0.25, 0.75)) if gz.size else (floor, floor))
+    c["gz_low"] = float(max(lo, floor))
+    c["gz_high"] = float(max(hi, c["gz_low"] * 1.01))
+    return _check_perceptual(c)
+
+
+def check_constants(normalization: str, constants: Mapping[str, float]) -> None:
+    """Raise InputError unless `constants` fit `normalization` (a bundle's stored mapping)."""
+    if normalization not in NORMALIZATIONS:
+        raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
+    if normalization == "perceptual":
+        _check_perceptual(constants)
+    elif constants:
+        raise InputError(f"the {normalization} mapping takes no constants beyond friction_scale; "
+                         f"got {', '.join(sorted(constants))}")
+
+
+def _check_perceptual(c: Mapping[str, float]) -> dict[str, float]:
+    need = set(PERCEPTUAL_DEFAULTS) | {"gz_low", "gz_high"}
+    missing = sorted(need - set(c))
+    if missing:
+        raise InputError(f"perceptual friction constants are missing {', '.join(missing)}")
+    out = {k: float(c[k]) for k in need}
+    if not all(np.isfinite(v) for v in out.values()):
+        raise InputError("perceptual friction constants must be finite")
+    if not (out["threshold_level"] > 0 and out["jnd_ratio"] > 1 and out["floor_slope"] > 0
+            and out["steps_per_octave"] > 0 and out["steps_span"] > 0 and out["gz_low"] > 0
+            and out["gz_high"] > out["gz_low"]):
+        raise InputError(f"perceptual friction constants are out of range: {out}")
+    return out
+
+
+def _perceptual(ax: np.ndarray, ay: np.ndarray, c: Mapping[str, float]) -> np.ndarray:
+    """Slopes -> friction in [0, 1] on the just-noticeable-step scale (see `friction_map`)."""
+    k = _check_perceptual(c)
+    gz = ax.astype(np.float64) ** 2 + ay.astype(np.float64) ** 2
+    gz = np.minimum(gz, 1e300)
+    floor = k["floor_slope"] ** 2
+    lg = np.log(np.maximum(gz, floor * 1e-12))
+    # The fabric's quartiles land on fixed steps; log slope is the compressive curve between and beyond them.
+    rel = k["steps_low"] + k["steps_span"] * (lg - np.log(k["gz_low"])) / np.log(k["gz_high"] / k["gz_low"])
+    # Never more steps than the slope itself grants above the flat floor (a doubling of |slope| is a factor 4 in
+    # gz): however the garment was calibrated, a flat one cannot be stretched into texture.
+    absolute = k["steps_per_octave"] * (lg - np.log(floor)) / np.log(4.0)
+    steps = np.minimum(rel, absolute)
+    level = k["threshold_level"] * np.power(k["jnd_ratio"], np.clip(steps, 0.0, 64.0))
+    level = np.where(steps > 0.0, level, 0.0)
+    return np.clip(level / 255.0, 0.0, 1.0).astype(np.float32)
+
+
 def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, int] | None = None, *,
                  normalization: Normalization = "calibrated", quantile: float = 0.98,
+                 constants: Mapping[str, float] | None = None,
                  counter: NonFiniteCounter | None = None) -> np.ndarray:
     """The 8-bit friction map the haptic screen renders (paper Sec. 4.4).
 
@@ -210,9 +316,15 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     calibrated constant (`calibrate_scale`, stored in the bundle). The same surface always feels the same.
     quantile: the published per-frame mapping, for comparison: gz clipped at its `quantile`, min-max to [0, 1],
     log10(9 gz + 1), min-max again. It stretches a nearly flat garment to full friction; `scale` is ignored.
+    perceptual: friction levels on the just-noticeable-step scale (`constants`, from `perceptual_constants`,
+    stored in the bundle): the fabric's lower/upper gz quartiles land `steps_low` and `steps_low + steps_span` steps
+    above the detection threshold, log(gz) is linear in steps between and beyond them, seams saturate at 255, and
+    no pixel gets more than `steps_per_octave` steps per doubling of its slope above `floor_slope` (below it:
+    natural friction). `scale` is ignored. Level = threshold_level * jnd_ratio^steps.
 
-    Then, if `size` = (width, height) is given, resized to the device panel (area averaging when shrinking, linear
-    when enlarging), and quantised: 0 = natural friction, 255 = maximum added friction.
+    If `size` = (width, height) is given, the result has the device panel's pixels: when enlarging, the slopes are
+    interpolated (linear) and mapped at panel pixels, so fine ridges keep their period; when shrinking, the friction
+    is mapped, then area-averaged. Quantised: 0 = natural friction, 255 = maximum added friction.
 
     Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
 
@@ -221,6 +333,18 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         0
     """
     ax, ay = sanitize_gradients(gx, gy, counter=counter)
+    out_size = None
+    if size is not None:
+        w, h = check_size(size, "device pixels")
+        if (w, h) != (ax.shape[1], ax.shape[0]):
+            out_size = (w, h)
+            if not (w <= ax.shape[1] and h <= ax.shape[0]):
+                # Enlarging: interpolate the slopes, then map at the panel's pixels. The map is nonlinear (a
+                # squared slope doubles a ridge's frequency), so mapping first and interpolating the friction
+                # would blur away exactly the fine texture the finger should feel.
+                ax = _resize(ax, (w, h), cv2.INTER_LINEAR)
+                ay = _resize(ay, (w, h), cv2.INTER_LINEAR)
+                out_size = None
     if normalization == "calibrated":
         if scale is None or not isinstance(scale, (int, float, np.floating, np.integer)) \
                 or not np.isfinite(scale) or scale <= 0:
@@ -233,6 +357,10 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         z = (ax * ax + ay * ay) * np.float32(1.0 / scale)
         np.clip(z, 0.0, 1.0, out=z)
         zp = np.log10(np.float32(9.0) * z + np.float32(1.0))
+    elif normalization == "perceptual":
+        if constants is None:
+            raise InputError("the perceptual friction mapping needs its constants (from the bundle)")
+        zp = _perceptual(ax, ay, constants)
     elif normalization == "quantile":
         if not 0.0 < quantile <= 1.0:
             raise InputError(f"quantile must be in (0, 1]; got {quantile}")
@@ -241,12 +369,14 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         gz = np.minimum(gz, np.quantile(gz, quantile))
         zp = _min_max(np.log10(9.0 * _min_max(gz) + 1.0)).astype(np.float32)
     else:
-        raise InputError(f"normalization must be 'calibrated' or 'quantile'; got {normalization!r}")
-    if size is not None:
-        w, h = check_size(size, "device pixels")
-        if (w, h) != (zp.shape[1], zp.shape[0]):
-            shrink = w <= zp.shape[1] and h <= zp.shape[0]
-            zp = cv2.resize(zp, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-            if zp.ndim == 1:  # cv2 drops a unit axis for 1-pixel-high results
-                zp = zp.reshape(h, w)
+        raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
+    if out_size is not None:
+        # Shrinking: map, then average friction over each panel pixel (what a finger under it integrates).
+        zp = _resize(np.ascontiguousarray(zp, dtype=np.float32), out_size, cv2.INTER_AREA)
     return np.rint(np.clip(zp, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _resize(a: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
+    w, h = size
+    out = cv2.resize(a, (w, h), interpolation=interpolation)
+    return out.reshape(h, w)  # cv2 drops a unit axis for 1-pixel-high results

@@ -168,12 +168,27 @@ class LoadedBundle:
     def friction_normalization(self) -> str:
         return self.manifest.friction_normalization
 
+    @property
+    def friction_constants(self) -> dict[str, float]:
+        return self.manifest.friction_constants
+
+    @property
+    def pixel_pitch_mm(self) -> float:
+        """The pitch (mm per model pixel) the bundle's model learned its texture at."""
+        return self.manifest.pixel_pitch_mm
+
+    def sizes(self, kind: str) -> list[tuple[int, int]]:
+        """The input sizes (width, height) a graph declares."""
+        return [(int(w), int(h)) for w, h in self.manifest.graph(kind).sizes]
+
     def info(self) -> dict:
         m = self.manifest
         return {"id": m.garment_id, "display_name": m.display_name, "model_version": m.model_version,
                 "method": m.method, "key": self.key, "signed_by": self.bundle.key_id,
                 "graphs": {k: {"precision": g.precision, "sizes": g.sizes} for k, g in m.graphs.items()},
-                "assets": sorted(m.assets), "friction_scale": m.friction_scale, "source": self.source}
+                "assets": sorted(m.assets), "friction_scale": m.friction_scale,
+                "friction_normalization": m.friction_normalization, "pixel_pitch_mm": m.pixel_pitch_mm,
+                "source": self.source}
 
     # -- sessions ------------------------------------------------------------------------------------------------
     def session(self, kind: str) -> ort.InferenceSession:

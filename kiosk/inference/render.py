@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,7 +42,8 @@ def intersect(a: Rect, b: Rect) -> Rect | None:
 
 
 def friction_texture(panel: str, tactile: np.ndarray, region: Rect, clip: Rect, *, scale: float,
-                     normalization: str = "calibrated", counter: NonFiniteCounter | None = None) -> Texture | None:
+                     normalization: str = "calibrated", constants: Mapping[str, float] | None = None,
+                     counter: NonFiniteCounter | None = None) -> Texture | None:
     """The friction texture of one panel: tactile (1, 2, H, W) at the grid -> the region's screen pixels, cropped to
     `clip` (the visible panel). None when nothing of the region is visible."""
     visible = intersect(region, clip)
@@ -49,7 +51,7 @@ def friction_texture(panel: str, tactile: np.ndarray, region: Rect, clip: Rect, 
         return None
     rx, ry, rw, rh = region
     fm = friction_map(tactile[0, 0], tactile[0, 1], scale, size=(rw, rh), normalization=normalization,
-                      counter=counter)
+                      constants=constants, counter=counter)
     vx, vy, vw, vh = visible
     crop = np.ascontiguousarray(fm[vy - ry:vy - ry + vh, vx - rx:vx - rx + vw])
     return Texture(panel, crop, vx, vy)
@@ -60,9 +62,9 @@ class FrictionSource:
     waits for it). Its screen rectangle is known before: the visible part of the region."""
 
     def __init__(self, panel: str, tactile: np.ndarray, region: Rect, clip: Rect, *, scale: float,
-                 normalization: str = "calibrated"):
+                 normalization: str = "calibrated", constants: Mapping[str, float] | None = None):
         self.panel, self.tactile, self.region, self.clip = panel, tactile, region, clip
-        self.scale, self.normalization = scale, normalization
+        self.scale, self.normalization, self.constants = scale, normalization, constants
         self.rect = intersect(region, clip)
         self.nonfinite = 0
         self.ms = 0.0
@@ -77,8 +79,23 @@ class FrictionSource:
             t0 = time.perf_counter()
             counter = NonFiniteCounter()
             self._texture = friction_texture(self.panel, self.tactile, self.region, self.clip, scale=self.scale,
-                                             normalization=self.normalization, counter=counter)
+                                             normalization=self.normalization, constants=self.constants,
+                                             counter=counter)
             self.nonfinite = counter.count
             self.ms = 1e3 * (time.perf_counter() - t0)
             self._made = True
             return self._texture
+
+
+def compose(textures: list[Texture], size: tuple[int, int]) -> np.ndarray:
+    """The panel frame the device should hold: textures pasted at their screen positions, later ones on top,
+    clipped to the device panel `size` = (width, height)."""
+    w, h = size
+    frame = np.zeros((h, w), np.uint8)
+    for t in textures:
+        vis = intersect(t.rect, (0, 0, w, h))
+        if vis is None:
+            continue
+        x, y, vw, vh = vis
+        frame[y:y + vh, x:x + vw] = t.pixels[y - t.y:y - t.y + vh, x - t.x:x - t.x + vw]
+    return frame

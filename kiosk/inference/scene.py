@@ -10,11 +10,16 @@ turns a scene plus the panels' sketches into the work, per panel:
   `full` run into a `tactile` one.
 - region: the object's bounding box (filled outer contour, `kiosk.contract.sketch.object_mask`, found on a coarse raster of
   the panel) plus `margin_px`, rounded so the network grid is a multiple of 256 (every exported graph needs that).
-- resolution: the panel's own pixels (scale <= 1: never more than the screen shows), capped by the bundle's
-  largest declared size and `inference.max_resolution` (`preview_max_resolution` while a stroke is drawn, and for
-  the quick first answer at stroke end, which a full-resolution refinement follows). A grid side is rounded down to
-  a multiple of 256 when that costs at most `MAX_ROUNDING_LOSS` of linear resolution, else up (the region then
-  grows with background).
+- resolution, at physical scale (the planner knows the panel's pitch, `panel_pitch_mm`): one model pixel covers
+  the bundle's pitch (`pixel_pitch_mm`, what its model learned at) on this panel, so grid px per screen px =
+  panel pitch / bundle pitch and a 2 mm weave is felt as 2 mm on any panel and at any drawing size. Each grid side
+  is rounded up to the sizes the graphs take (multiples of 256), the region growing with background, so rounding
+  never changes the scale. When the object needs more than the bundle's largest declared size (or
+  `inference.max_resolution`) allows, the scale drops to what fits, the texture is felt coarser than the fabric,
+  and the planner logs one warning per bundle and cause. Previews and the quick first answer at stroke end use
+  `preview_max_resolution` and may drop the scale the same way (silently: the refinement restores it).
+- resolution, without a panel pitch (legacy): the panel's own pixels (scale <= 1), capped as above; a grid side is
+  rounded down to a multiple of 256 when that costs at most `MAX_ROUNDING_LOSS` of linear resolution, else up.
 - reuse: the cache key is the network input's content (sketch and mask bytes at the grid) + grid + bundle +
   modality; the region's position on screen is not part of it because the network input does not depend on it.
 
@@ -28,6 +33,7 @@ Coordinates: screen pixels, x = column from the left, y = row from the top; rect
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -53,6 +59,7 @@ HALVES = ("full", "left", "right")
 GRAPHS = ("full", "tactile", "visual", "none")
 
 Rect = tuple[int, int, int, int]
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -117,6 +124,7 @@ class BundleInfo(Protocol):
     """What the planner needs to know about a loaded bundle (`kiosk.inference.engine.LoadedBundle` provides it)."""
 
     key: str
+    pixel_pitch_mm: float
 
     def graphs(self) -> tuple[str, ...]: ...
     def cap(self, kind: str) -> tuple[int, int]: ...
@@ -160,6 +168,8 @@ class PanelPlan:
     computed_pixels: int = 0
     naive_pixels: int = 0
     refine_grid: tuple[int, int] | None = None  # quick plans: the grid a full-resolution plan would use
+    target_scale: float | None = None  # physical scale: grid px per screen px at which texture is felt true
+    felt_ratio: float | None = None    # felt / true texture size (1.0 at physical scale; > 1 coarser)
     inputs: NetworkInput | None = field(default=None, repr=False)
     mask: np.ndarray | None = field(default=None, repr=False)
 
@@ -175,7 +185,9 @@ class PanelPlan:
                 "cache_key": self.cache_key, "reason": self.reason, "clip": list(self.clip),
                 "placement": self.placement.to_json() if self.placement else None,
                 "computed_pixels": self.computed_pixels, "naive_pixels": self.naive_pixels,
-                "refine_grid": list(self.refine_grid) if self.refine_grid else None}
+                "refine_grid": list(self.refine_grid) if self.refine_grid else None,
+                "target_scale": None if self.target_scale is None else round(self.target_scale, 4),
+                "felt_ratio": None if self.felt_ratio is None else round(self.felt_ratio, 4)}
 
 
 @dataclass
@@ -251,6 +263,23 @@ def grid_for(box: tuple[float, float], cap: tuple[int, int]) -> tuple[tuple[int,
                 best = cand
     assert best is not None, "rounding up always keeps the full scale"
     return best[2], -best[1]
+
+
+def physical_grid(box: tuple[float, float], target: float, cap: tuple[int, int]) -> tuple[tuple[int, int], float]:
+    """Network grid and scale for a box of (w, h) screen pixels at the physical scale `target` (grid px per screen
+    px): each side rounded up to a multiple of 256 (the region grows, the scale stays). When that exceeds `cap`, the
+    largest scale whose grid fits (the texture is then felt target/scale times coarser)."""
+    bw, bh = max(float(box[0]), 1.0), max(float(box[1]), 1.0)
+    cw, ch = cap
+    if cw < MULTIPLE or ch < MULTIPLE or cw % MULTIPLE or ch % MULTIPLE:
+        raise InputError(f"resolution cap {cap} must be multiples of {MULTIPLE}")
+    if not (target > 0 and math.isfinite(target)):
+        raise InputError(f"physical scale must be a positive finite number; got {target!r}")
+    s = min(float(target), cw / bw, ch / bh)
+    # ceil with a tolerance: bw * s may land a hair above a multiple of 256 through rounding
+    gw = min(cw, max(MULTIPLE, int(math.ceil(bw * s / MULTIPLE - 1e-9)) * MULTIPLE))
+    gh = min(ch, max(MULTIPLE, int(math.ceil(bh * s / MULTIPLE - 1e-9)) * MULTIPLE))
+    return (gw, gh), s
 
 
 def place_region(box: tuple[float, float, float, float], size: tuple[int, int], clip: Rect) -> Rect:
@@ -350,11 +379,30 @@ class Planner:
     """Plans scenes for the daemon. `cached(key, modality) -> bool` tells what the output cache holds."""
 
     def __init__(self, *, max_resolution: int = 512, preview_max_resolution: int = 256, margin_px: int = 16,
-                 cached: Callable[[str, str], bool] | None = None):
+                 cached: Callable[[str, str], bool] | None = None, panel_pitch_mm: float | None = None):
+        """`panel_pitch_mm`: the screen's physical pitch (mm per screen pixel, from the kiosk config's panel);
+        None plans at screen pixels (legacy, the texture's felt size then depends on the panel)."""
+        if panel_pitch_mm is not None and not (isinstance(panel_pitch_mm, (int, float))
+                                               and math.isfinite(panel_pitch_mm) and panel_pitch_mm > 0):
+            raise InputError(f"panel pitch must be a positive number of mm per pixel; got {panel_pitch_mm!r}")
         self.max_resolution = max_resolution
         self.preview_max_resolution = preview_max_resolution
         self.margin_px = margin_px
         self.cached = cached or (lambda key, modality: False)
+        self.panel_pitch_mm = panel_pitch_mm
+        self.warned: set[tuple[str, str]] = set()
+
+    def target_scale(self, bundle: BundleInfo) -> float | None:
+        """Grid px per screen px at which one model pixel covers the bundle's pitch on this panel."""
+        pitch = getattr(bundle, "pixel_pitch_mm", None)
+        if self.panel_pitch_mm is None or not pitch:
+            return None
+        return self.panel_pitch_mm / float(pitch)
+
+    def _warn_once(self, bundle: BundleInfo, cause: str, msg: str) -> None:
+        if (bundle.key, cause) not in self.warned:
+            self.warned.add((bundle.key, cause))
+            log.warning("%s", msg)
 
     def plan(self, scene: Scene, sketches: Mapping[str, SketchInput], bundles: Mapping[str, BundleInfo], *,
              preview: bool = False, quick: bool = False) -> Plan:
@@ -427,9 +475,27 @@ class Planner:
         x1, y1 = ax + box[2] / k + m, ay + box[3] / k + m
         # 2. Graph: what is needed and not cached. 3. Grid and region.
         kind0 = choose_graph(needs, bundle.graphs())
-        grid, scale = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, preview or quick))
-        if quick:
-            pp.refine_grid = grid_for((x1 - x0, y1 - y0), self._cap(bundle, kind0, False))[0]
+        extent = (x1 - x0, y1 - y0)
+        target = self.target_scale(bundle)
+        if target is None:
+            grid, scale = grid_for(extent, self._cap(bundle, kind0, preview or quick))
+            if quick:
+                pp.refine_grid = grid_for(extent, self._cap(bundle, kind0, False))[0]
+        else:
+            grid, scale = physical_grid(extent, target, self._cap(bundle, kind0, preview or quick))
+            full_grid, full_scale = physical_grid(extent, target, self._cap(bundle, kind0, False))
+            if quick:
+                pp.refine_grid = full_grid
+            pp.target_scale, pp.felt_ratio = target, target / scale
+            if full_scale < target * (1.0 - 1e-6):
+                need = (math.ceil(extent[0] * target / MULTIPLE) * MULTIPLE, math.ceil(extent[1] * target / MULTIPLE)
+                        * MULTIPLE)
+                cap = self._cap(bundle, kind0, False)
+                self._warn_once(bundle, "cap", f"garment {panel.bundle}: at this panel's {self.panel_pitch_mm:.3f} "
+                                f"mm/px and the bundle's {bundle.pixel_pitch_mm:.3f} mm/px the drawn garment needs a "
+                                f"{need[0]}x{need[1]} grid but at most {cap[0]}x{cap[1]} is available (bundle sizes, "
+                                f"inference.max_resolution); its texture is felt {target / full_scale:.2f}x coarser "
+                                f"than the fabric")
         rw, rh = round(grid[0] / scale), round(grid[1] / scale)
         region = place_region((x0, y0, x1, y1), (rw, rh), clip)
         t = Transform(region[0], region[1], grid[0] / rw, grid[1] / rh, grid)

@@ -13,6 +13,7 @@ iteration's latency when it did work and without when it only polled. Its check 
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 import urllib.error
@@ -20,6 +21,7 @@ import urllib.request
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 Check = Callable[[], "CheckResult"]
@@ -207,6 +209,27 @@ def device_check(health: Callable[[], Any], *, max_heartbeat_age_s: float = 2.0)
         if age is not None and age > max_heartbeat_age_s:
             return CheckResult(False, f"link up but last heartbeat {age:.1f} s ago (limit {max_heartbeat_age_s:g} s)")
         return CheckResult(True, "link up" + (f", heartbeat {age * 1e3:.0f} ms ago" if age is not None else ""))
+
+    return check
+
+
+def storage_check(path: Path, write_error: Callable[[], str | None], *, min_free_bytes: int = 1 << 20) -> Check:
+    """A file the kiosk must keep writing (the study log): its last write went through and its file system has at
+    least `min_free_bytes` free, so the researcher hears of a filling disk before a record is refused."""
+
+    def check() -> CheckResult:
+        err = write_error()
+        if err:
+            return CheckResult(False, err)
+        try:
+            st = os.statvfs(Path(path).parent)
+        except OSError as exc:
+            return CheckResult(False, f"cannot check free space beside {path}: {exc.strerror or exc}")
+        free = st.f_bavail * st.f_frsize
+        if free < min_free_bytes:
+            return CheckResult(False, f"only {free / 2**20:.2f} MiB free for {path} (below "
+                                      f"{min_free_bytes / 2**20:g} MiB): free disk space before records are refused")
+        return CheckResult(True, f"writable, {free / 2**20:.0f} MiB free")
 
     return check
 

@@ -100,6 +100,7 @@ class Counter(_Metric):
     def __init__(self, name: str, help: str, labels: Iterable[str] = ()):
         super().__init__(name, help, labels)
         self._values: dict[tuple[str, ...], float] = {} if self.labels else {(): 0.0}
+        self._functions: dict[tuple[str, ...], Callable[[], float]] = {}
 
     def inc(self, amount: float = 1.0, **labels: object) -> None:
         amount = float(amount)
@@ -107,17 +108,31 @@ class Counter(_Metric):
             raise MetricError(f"counter {self.name} can only increase by a finite amount >= 0; got {amount}")
         key = self._key(labels)
         with self._lock:
+            if key in self._functions:
+                raise MetricError(f"counter {self.name}{dict(labels)} is read from a function; it cannot be inc'd")
             self._values[key] = self._values.get(key, 0.0) + amount
+
+    def set_function(self, fn: Callable[[], float], **labels: object) -> None:
+        """Read a total that another process keeps (e.g. the fleet sync job's state file) at each render."""
+        key = self._key(labels)
+        with self._lock:
+            self._functions[key] = fn
+            self._values.pop(key, None)
 
     def value(self, **labels: object) -> float:
         key = self._key(labels)
         with self._lock:
-            return self._values.get(key, 0.0)
+            fn = self._functions.get(key)
+            if fn is None:
+                return self._values.get(key, 0.0)
+        return Gauge._call(fn)
 
     def _samples(self) -> list[str]:
         with self._lock:
-            items = sorted(self._values.items())
-        return [f"{self.name}{_label_text(self.labels, k)} {format_value(v)}" for k, v in items]
+            items = dict(self._values)
+            fns = dict(self._functions)
+        items.update({k: Gauge._call(fn) for k, fn in fns.items()})
+        return [f"{self.name}{_label_text(self.labels, k)} {format_value(v)}" for k, v in sorted(items.items())]
 
 
 class Gauge(_Metric):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import ipaddress
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,12 @@ from kiosk.bundle.manifest import PRECISIONS
 from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRID_MULTIPLE
+from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
+from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
+
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
+_NAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]{0,62}\.?)*$")
 
 
 class ConfigError(KioskError):
@@ -36,10 +41,17 @@ class ServerConfig:
     port: int = 8765
     allow_non_loopback: bool = False
     request_timeout_s: float = 10.0
+    header_timeout_s: float = 10.0     # a request (line, headers, body) must arrive within this
+    max_connections: int = 64          # connections served at once; the next gets a 503
+    names: tuple[str, ...] = ()        # Host names the page may be reached by, beside the listen address
 
     def __post_init__(self) -> None:
         _check(0 <= self.port <= 65535, "server.port must be from 0 (any free port) to 65535")
         _check(self.request_timeout_s > 0, "server.request_timeout_s must be > 0")
+        _check(0 < self.header_timeout_s <= 300, "server.header_timeout_s must be > 0 and at most 300")
+        _check(1 <= self.max_connections <= 4096, "server.max_connections must be from 1 to 4096")
+        for name in self.names:
+            _check(bool(_NAME_RE.match(name)), f"server.names: {name[:80]!r} is not a host name")
         if not self.allow_non_loopback and not is_loopback(self.host):
             raise ConfigError(f"server.host {self.host!r} is not a loopback address; the kiosk page has no login, so "
                               "it is served on 127.0.0.1 only (set server.allow_non_loopback: true to override)")
@@ -98,6 +110,55 @@ class InferenceConfig:
 
 
 @dataclass(frozen=True)
+class PanelConfig:
+    """The haptic screen's physical size, so texture is rendered at true scale (`kiosk.service.panels`).
+
+    model: a known panel (its pixels and size); width_mm/height_mm and width_px/height_px, when given, override it
+    (state all four for a panel not in the table). Pixels must be square within 3 %.
+    """
+
+    model: str | None = DEFAULT_PANEL
+    width_mm: float | None = None
+    height_mm: float | None = None
+    width_px: int | None = None
+    height_px: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.model is not None:
+            _check(self.model in KNOWN_PANELS, f"panel.model {self.model!r} is not a known panel (known: "
+                   f"{', '.join(sorted(KNOWN_PANELS))}); state panel.width_mm, height_mm, width_px, height_px instead")
+        w_mm, h_mm, w_px, h_px = self.dims
+        for name, v in (("width_mm", w_mm), ("height_mm", h_mm), ("width_px", w_px), ("height_px", h_px)):
+            _check(v is not None, f"panel.{name} is needed (no panel.model gives it)")
+        _check(10.0 <= w_mm <= 5000.0 and 10.0 <= h_mm <= 5000.0, "panel.width_mm and height_mm must be from 10 to 5000")
+        _check(16 <= w_px <= 16384 and 16 <= h_px <= 16384, "panel.width_px and height_px must be from 16 to 16384")
+        px, py = w_mm / w_px, h_mm / h_px
+        _check(abs(px - py) <= 0.03 * max(px, py), f"panel pixels are not square: {px:.4f} mm wide, {py:.4f} mm high "
+               "(check panel.width_mm, height_mm, width_px, height_px)")
+
+    @property
+    def dims(self) -> tuple:
+        k = KNOWN_PANELS.get(self.model) if self.model else None
+        return (self.width_mm if self.width_mm is not None else (k.width_mm if k else None),
+                self.height_mm if self.height_mm is not None else (k.height_mm if k else None),
+                self.width_px if self.width_px is not None else (k.width_px if k else None),
+                self.height_px if self.height_px is not None else (k.height_px if k else None))
+
+    @property
+    def pitch_mm(self) -> float:
+        """mm per screen pixel (the mean of both axes)."""
+        w_mm, h_mm, w_px, h_px = self.dims
+        return 0.5 * (w_mm / w_px + h_mm / h_px)
+
+    def describe(self) -> dict:
+        w_mm, h_mm, w_px, h_px = self.dims
+        k = KNOWN_PANELS.get(self.model) if self.model else None
+        return {"model": self.model, "size_mm": [w_mm, h_mm], "size_px": [w_px, h_px],
+                "pitch_mm": round(self.pitch_mm, 5),
+                "source": "kiosk config" if (self.width_mm or self.height_mm) or k is None else k.source}
+
+
+@dataclass(frozen=True)
 class HealthConfig:
     """Health checks behind the watchdog and /healthz. stale_after_s: the inference loop must beat this often
     (it beats while idle too); device_max_heartbeat_age_s: the haptic link's last heartbeat must be this fresh."""
@@ -128,6 +189,105 @@ class DebugConfig:
     fault_injection: bool = False
 
 
+MAX_TEXT_CHARS = 200  # a line a shopper reads at arm's length; longer text breaks the page's layout
+
+
+@dataclass(frozen=True)
+class PageTexts:
+    """Every sentence the shopper's page shows, so a store can reword or translate it without touching code.
+    The page picks the hint that matches its state (Draw or Feel mode, with or without a garment)."""
+
+    title: str = "Draw it. See it. Feel it."
+    invite: str = "Touch the screen to start"
+    draw: str = "Draw"
+    feel: str = "Feel"
+    undo: str = "Undo"
+    clear: str = "Clear"
+    outline: str = "Start from its outline"
+    catalogue: str = "Fabrics"
+    feeling: str = "You are feeling"
+    hint_draw_empty: str = "Draw the outline of a garment with one finger. Close the outline to see it made."
+    hint_draw: str = "Keep drawing to change your garment, or tap Feel to touch its fabric."
+    hint_feel: str = "Slide your finger over the garment to feel the fabric. Tap Draw to change it."
+    hint_feel_empty: str = "Nothing to feel yet: tap Draw and draw a garment, or pick a fabric."
+    hint_pen: str = "Draw with the pen. Slide a finger over the garment to feel the fabric."
+    ready: str = "Your garment is ready: slide a finger over it to feel the fabric."
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            _check(len(v) <= MAX_TEXT_CHARS and "\n" not in v,
+                   f"page.texts.{f.name} must be one line of at most {MAX_TEXT_CHARS} characters")
+
+
+@dataclass(frozen=True)
+class PageConfig:
+    """The shopper's page: the store loop's timings and its texts.
+
+    idle_timeout_s: no touch for this long clears the drawing and the friction frame and shows the attract screen.
+    attract_garment_s: how long the attract screen spends drawing and filling in each catalogue garment.
+    auto_feel: switch to Feel mode when a drawing first closes into a garment. pen_draws: once a pen has touched
+    the screen, the pen always draws and a finger always feels (the toggle stays as the way back).
+    tap_max_px: a touch that never moves farther than this (CSS pixels) is a tap and leaves no ink.
+    """
+
+    idle_timeout_s: float = 90.0
+    attract_garment_s: float = 6.0
+    auto_feel: bool = True
+    pen_draws: bool = True
+    tap_max_px: float = 6.0
+    texts: PageTexts = field(default_factory=PageTexts)
+
+    def __post_init__(self) -> None:
+        _check(0.5 <= self.idle_timeout_s <= 3600.0, "page.idle_timeout_s must be from 0.5 to 3600 seconds")
+        _check(2.0 <= self.attract_garment_s <= 120.0, "page.attract_garment_s must be from 2 to 120 seconds")
+        _check(0.0 <= self.tap_max_px <= 100.0, "page.tap_max_px must be from 0 to 100 (CSS pixels)")
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """Fleet updates (`vtkiosk fleet sync`, docs/fleet.md); no url: this kiosk takes no part in a fleet.
+
+    url: the repository's base URL (metadata/ and targets/ under it). root: the trust anchor, the root metadata from
+    the key ceremony, provisioned with the kiosk (never fetched from the server). kiosk_id: this kiosk's name, whose
+    hash decides its staged-rollout bucket. channel: canary or stable. state_dir: TUF metadata cache, downloads and
+    the last sync's result. attempts, backoff_s: tries per sync while the repository does not answer, waiting
+    backoff_s, then twice that ... (at most max_backoff_s, jittered). stale_after_s: /healthz calls the metadata
+    stale past this age (the kiosk keeps serving).
+    """
+
+    url: str | None = None
+    root: Path | None = None
+    kiosk_id: str | None = None
+    channel: str = "stable"
+    state_dir: Path = Path("/var/lib/vtkiosk/fleet")
+    attempts: int = 3
+    backoff_s: float = 5.0
+    max_backoff_s: float = 60.0
+    timeout_s: float = 30.0
+    stale_after_s: float = 86400.0
+
+    def __post_init__(self) -> None:
+        _check(self.channel in CHANNELS, f"fleet.channel must be one of {', '.join(CHANNELS)}")
+        _check(1 <= self.attempts <= 10, "fleet.attempts must be from 1 to 10")
+        _check(0 <= self.backoff_s <= 3600 and 0 <= self.max_backoff_s <= 3600,
+               "fleet.backoff_s and fleet.max_backoff_s must be from 0 to 3600 seconds")
+        _check(0 < self.timeout_s <= 600, "fleet.timeout_s must be > 0 and at most 600 seconds")
+        _check(self.stale_after_s > 0, "fleet.stale_after_s must be > 0 seconds")
+        if self.url is not None:
+            _check(self.url.startswith(("http://", "https://")), "fleet.url must be an http:// or https:// URL")
+            _check(self.root is not None, "fleet.root (the trust anchor root.json) is required with fleet.url")
+            _check(self.kiosk_id is not None and bool(KIOSK_ID_RE.match(self.kiosk_id)),
+                   "fleet.kiosk_id is required with fleet.url (1 to 128 letters, digits, '.', '_', ':', '-')")
+
+    @property
+    def enabled(self) -> bool:
+        return self.url is not None
+
+
 @dataclass(frozen=True)
 class KioskConfig:
     server: ServerConfig = field(default_factory=ServerConfig)
@@ -135,9 +295,12 @@ class KioskConfig:
     bundles: tuple[Path, ...] = ()
     device: BridgeConfig = field(default_factory=BridgeConfig)
     inference: InferenceConfig = field(default_factory=InferenceConfig)
+    panel: PanelConfig = field(default_factory=PanelConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     debug: DebugConfig = field(default_factory=DebugConfig)
+    fleet: FleetConfig = field(default_factory=FleetConfig)
+    page: PageConfig = field(default_factory=PageConfig)
     state_dir: Path | None = None
     log_level: str = "INFO"
 

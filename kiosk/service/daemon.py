@@ -41,8 +41,9 @@ from kiosk.bundle.manifest import BundleError
 from kiosk.ops.metrics import Registry
 from kiosk.ops.notify import Notifier, Watchdog, watchdog_interval_s
 from kiosk.inference.render import FrictionSource
-from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput, choose_graph
+from kiosk.inference.scene import PanelPlan, Plan, Planner, Scene, SketchInput
 from kiosk.service.server import KioskServer, Request, Response
+from kiosk.service.usage import UsageMetrics, parse_usage_event
 
 log = logging.getLogger(__name__)
 IDLE_BEAT_S = 0.25
@@ -122,10 +123,14 @@ class KioskDaemon:
         self.health = HealthMonitor()
         self.server = KioskServer(config.server.host, config.server.port,
                                   allow_non_loopback=config.server.allow_non_loopback,
-                                  timeout_s=config.server.request_timeout_s)
+                                  timeout_s=config.server.request_timeout_s,
+                                  header_timeout_s=config.server.header_timeout_s,
+                                  max_connections=config.server.max_connections,
+                                  server_names=config.server.names)
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
-                               margin_px=inf.margin_px, cached=self.cache.has)
+                               margin_px=inf.margin_px, cached=self.cache.has,
+                               panel_pitch_mm=config.panel.pitch_mm)
         self.device = DeviceOutput(config.device, display=display, on_error=self._device_error,
                                    on_texture=self._texture_made)
         self.notifier = notifier if notifier is not None else Notifier.from_env()
@@ -170,8 +175,13 @@ class KioskDaemon:
         self.m_requests = r.histogram("vtkiosk_http_request_seconds", "HTTP request latency.", labels=("route",))
         self.m_nonfinite = r.counter("vtkiosk_nonfinite_values_total",
                                      "Non-finite tactile values replaced by 0 in friction maps.")
+        self.usage = UsageMetrics(r)
         self.m_device_up.set_function(lambda: 1.0 if self.device.up else 0.0)
         self.m_degraded.set_function(lambda: 1.0 if self._notices else 0.0)
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, register_metrics
+
+            register_metrics(r, self.config.fleet.state_dir / STATE_FILE)
 
     def _device_error(self, kind: str, exc: BaseException) -> None:
         self.m_device_errors.inc(kind=kind)
@@ -337,7 +347,12 @@ class KioskDaemon:
             report = self.reload()
             if not self._bundles:
                 reasons = "; ".join(f"{e['source']}: {e['reason']}" for e in report["failed"] + report["kept"])
-                raise BundleError(f"no bundle could be loaded ({reasons or 'none configured'})")
+                if not reasons:
+                    where = f"the store {self.config.store.root} has no active bundle and " \
+                        if self.config.store.root else ""
+                    raise BundleError(f"nothing to serve: {where}no bundle is configured; install one with "
+                                      "`vtkiosk bundle install FILE --activate`, or pass --bundle FILE")
+                raise BundleError(f"no bundle could be loaded ({reasons})")
             self.device.start()
             self._stop.clear()
             self._loop_thread = threading.Thread(target=self._loop, name="vtkiosk-inference", daemon=True)
@@ -392,6 +407,11 @@ class KioskDaemon:
             self.add_health_check("device", dev)
         self.add_health_check("server", http_check(self.server.url + "api/ping", timeout_s=1.0))
         self.add_health_check("bundle", self._bundle_check)
+        if self.config.fleet.enabled:  # informational: an offline repository must not restart a serving kiosk
+            from kiosk.fleet.state import STATE_FILE, fleet_check
+
+            fleet = self.config.fleet
+            self.add_health_check("fleet", fleet_check(fleet.state_dir / STATE_FILE, fleet.stale_after_s))
         interval = watchdog_interval_s() or h.interval_s
         self.watchdog = Watchdog(self.notifier, self.health, interval, on_report=health_metrics(self.metrics))
         self.watchdog.start()
@@ -546,13 +566,17 @@ class KioskDaemon:
         bundles = self._bundles  # snapshot: a reload swaps the dict, never mutates it
         quick = req.mode == "final" and self.config.inference.refine
         plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview, quick=quick)
+        held = self._take_reused(plan)
+        if held is None:  # an entry the plan reuses left the cache since: the planner decides again
+            plan = self.planner.plan(req.scene, req.sketches, bundles, preview=req.preview, quick=quick)
+            held = self._take_reused(plan) or {}
         frame = next(self._frame_ids)
         timings = {"queue_ms": 1e3 * (t_start - job.received_at), "rasterize_ms": plan.rasterize_ms,
                    "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
         results: list[PanelResult] = []
         notices: dict[str, str] = {}
         for pp in plan.panels:
-            res = self._render_panel(pp, bundles[pp.bundle], req.preview, timings, notices)
+            res = self._render_panel(pp, bundles[pp.bundle], req.preview, timings, notices, held)
             results.append(res)
         plan_json = plan.to_json()
         self._last_plan = plan_json
@@ -591,22 +615,32 @@ class KioskDaemon:
         return FrameResult(frame, req.mode, plan, results, timings, job.received_at, ready, device_frame,
                            self.notices())
 
+    def _take_reused(self, plan: Plan) -> dict[tuple[str, str], np.ndarray] | None:
+        """The cached outputs the plan reuses, taken before any graph runs (a later put may evict them); None
+        when one is gone already."""
+        held: dict[tuple[str, str], np.ndarray] = {}
+        for pp in plan.panels:
+            for mod in pp.reused:
+                v = self.cache.get(pp.cache_key, mod)
+                if v is None:
+                    return None
+                held[(pp.panel, mod)] = v
+        return held
+
     def _render_panel(self, pp: PanelPlan, bundle: LoadedBundle, preview: bool, timings: dict,
-                      notices: dict) -> PanelResult:
+                      notices: dict, held: dict[tuple[str, str], np.ndarray]) -> PanelResult:
+        """Carry out the planner's decision for one panel: reuse what it reuses, run the graph it chose."""
         if pp.graph == "none" and not pp.reused:
             if pp.needs and pp.region is None:
                 return PanelResult(pp.panel, "empty", pp)  # nothing drawn (yet): an empty, valid result
             return PanelResult(pp.panel, "ok" if not pp.needs else "empty", pp)
-        have: dict[str, np.ndarray] = {}
-        for mod in pp.reused:
-            v = self.cache.get(pp.cache_key, mod)
-            if v is not None:
-                have[mod] = v
+        have = {mod: held[(pp.panel, mod)] for mod in pp.reused if (pp.panel, mod) in held}
         self.m_cache.inc(len(have), result="hit")
-        missing = tuple(m for m in pp.needs if m not in have)
-        if missing:
-            self.m_cache.inc(len(missing), result="miss")
-            pp.graph = choose_graph(missing, bundle.graphs())
+        if len(have) < len(pp.reused):  # the cache was emptied twice while planning (a reload): keep last good
+            return self._keep(pp, "exception", InferenceError(f"{bundle.garment_id}: cached output vanished"),
+                              notices)
+        if pp.graph != "none":
+            self.m_cache.inc(len(pp.needs) - len(have), result="miss")
             try:
                 t0 = time.perf_counter()
                 run = bundle.run(pp.graph, pp.inputs)
@@ -630,7 +664,8 @@ class KioskDaemon:
         res = PanelResult(pp.panel, "ok", pp, visual=have.get("visual") if "visual" in pp.needs else None)
         if "tactile" in pp.needs and not preview:
             res.friction = FrictionSource(pp.panel, have["tactile"], pp.region, pp.clip,
-                                          scale=bundle.friction_scale, normalization=bundle.friction_normalization)
+                                          scale=bundle.friction_scale, normalization=bundle.friction_normalization,
+                                          constants=bundle.friction_constants)
         if not preview:
             self._last_good[pp.panel] = res
         return res
@@ -654,6 +689,7 @@ class KioskDaemon:
         report = self.health.last()
         return {"bundles": {g: b.info() for g, b in sorted(self._bundles.items())},
                 "device": self.device.state(), "notices": self.notices(), "degraded": bool(self.notices()),
+                "scale": self.scale_info(),
                 "health": report.to_json() if report else None, "last_reload": self._last_reload,
                 "cache": {"entries": len(self.cache), "bytes": self.cache.nbytes, "hits": self.cache.hits,
                           "misses": self.cache.misses},
@@ -666,6 +702,8 @@ class KioskDaemon:
         s.route("GET", "/api/ping", lambda req: Response.json({"ok": True}))
         s.route("GET", "/api/bundles", self._api_bundles)
         s.route("POST", "/api/render", self._api_render)
+        s.route("GET", "/api/page", lambda req: Response.json(self.config.page.to_json()))
+        s.route("POST", "/api/usage", self._api_usage)
         s.route("GET", "/api/plan", lambda req: Response.json({"plan": self._last_plan}))
         s.route("GET", "/api/status", lambda req: Response.json(self.status()))
         s.route("GET", "/api/commit", self._api_commit)
@@ -676,7 +714,20 @@ class KioskDaemon:
 
     def _api_healthz(self, req: Request) -> Response:
         report = self.health.run()  # fresh: the checks only read state the working threads keep
-        return Response.json(report.to_json(), 200 if report.ok else 503)
+        body = {**report.to_json(), "scale": self.scale_info()}
+        if self.config.fleet.enabled:
+            from kiosk.fleet.state import STATE_FILE, section
+
+            body["fleet"] = section(self.config.fleet.state_dir / STATE_FILE, self.config.fleet.stale_after_s)
+        return Response.json(body, 200 if report.ok else 503)
+
+    def scale_info(self) -> dict:
+        """Both pitches: the panel's (config) and each bundle's (what its model learned at), and the ratio the
+        planner infers at (grid px per screen px)."""
+        panel = self.config.panel.describe()
+        return {"panel": panel, "bundles": {g: {"pixel_pitch_mm": b.pixel_pitch_mm,
+                                                "grid_per_screen_px": round(panel["pitch_mm"] / b.pixel_pitch_mm, 4)}
+                                            for g, b in sorted(self._bundles.items())}}
 
     def _api_bundles(self, req: Request) -> Response:
         parts = req.path.split("/")  # /api/bundles[/<id>/<asset>.png]
@@ -702,6 +753,10 @@ class KioskDaemon:
         except BusyError as exc:
             return Response.error(503, str(exc))
         return frame_response(result)
+
+    def _api_usage(self, req: Request) -> Response:
+        self.usage.record(parse_usage_event(req.json()))
+        return Response(204)
 
     def _api_commit(self, req: Request) -> Response:
         try:

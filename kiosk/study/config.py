@@ -200,7 +200,8 @@ def _conditions(doc: dict, garments: tuple[str, ...], base: Path) -> dict[str, d
     return out
 
 
-def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "", where: str = "study config") -> StudyConfig:
+def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "",
+                       where: str = "study config") -> StudyConfig:
     """Validate a parsed study document; raise StudyConfigError naming the first problem."""
     return loader.build(StudyConfig, doc, error=StudyConfigError, base_dir=base, where=where,
                         internal={"source_sha256": source_sha256, "base_dir": base})

@@ -20,7 +20,9 @@ Format: each line is canonical JSON (sorted keys, no spaces, ASCII, no NaN) of a
 the record without `sum`. A reader counts a record only when its line is complete (ends with a newline), parses, and
 its checksum matches; anything else is reported as a problem and never counted. On opening for writing, bytes after
 the last valid record (a torn tail from a crash) are moved aside to `<log>.torn-<offset>` and cut off, so new
-records never follow garbage.
+records never follow garbage. While the writer runs, an append the file system refuses half-way (a full disk) is cut
+back to the last valid record before the error is raised, so the log stays exactly as it was and the next append,
+once there is space again, starts on a clean line.
 """
 from __future__ import annotations
 
@@ -46,6 +48,10 @@ MAX_LINE = 1 << 20
 
 class StudyLogError(KioskError):
     """A study log that cannot be opened or written; the message says what to do."""
+
+
+class StudyLogWriteError(StudyLogError):
+    """An append that the file system refused (full disk, I/O error); the log is exactly as before it."""
 
 
 class DuplicateResponse(KioskError):
@@ -266,6 +272,8 @@ class StudyLog:
         self.read_at_open = read
         self.state = state
         self._seq = read.records[-1]["seq"]
+        self._end = read.valid_end    # bytes of valid records: the file's size between appends
+        self.write_error: str | None = None   # why the last append failed; None once one succeeds again
         self.boot_id = boot_id()
         self.software = software_version()
 
@@ -294,7 +302,11 @@ class StudyLog:
             if not data:
                 header = {"seq": 1, "type": "log", "format": FORMAT, "version": FORMAT_VERSION, "study_id": study_id,
                           "created": wall_now(), "software": software_version()}
-                _write_durably(fd, encode_record(header))
+                try:
+                    _write_durably(fd, encode_record(header))
+                except OSError:
+                    _cut_back(fd, 0)
+                    raise
                 if created:
                     fsync_dir(path.parent)
                 data = _read_all(fd)
@@ -307,6 +319,10 @@ class StudyLog:
             if read.torn_tail:
                 _set_aside_tail(path, fd, data, read.valid_end)
             return cls(path, fd, read, replay(read.records))
+        except OSError as exc:
+            os.close(fd)
+            raise StudyLogWriteError(f"cannot prepare the study log {path}: {exc.strerror or exc}; nothing in it "
+                                     "was changed") from None
         except BaseException:
             os.close(fd)
             raise
@@ -317,10 +333,33 @@ class StudyLog:
             raise ValueError(f"unknown record type {type_!r}")
         rec = {"seq": self._seq + 1, "type": type_, **payload}
         line = encode_record(rec)
-        _write_durably(self._fd, line)
+        self._append_line(line)
         self._seq += 1
         self._fold(rec)
         return rec
+
+    def _append_line(self, line: bytes) -> None:
+        """Write one line durably, or leave the file exactly as it was and raise StudyLogWriteError.
+
+        A write that fails half-way (ENOSPC) leaves its first bytes in the file; the next record would be glued to
+        them and read back as garbage although it was fsync'd and acknowledged. So a failed append is cut back to
+        the last valid record at once, and every append first checks that nothing follows that record (a cut that
+        itself failed is retried there)."""
+        try:
+            if os.fstat(self._fd).st_size != self._end:
+                _cut_back(self._fd, self._end)
+            _write_durably(self._fd, line)
+        except OSError as exc:
+            try:
+                _cut_back(self._fd, self._end)
+            except OSError:
+                pass  # the next append retries the cut before it writes
+            self.write_error = (f"cannot write to the study log {self.path}: {exc.strerror or exc}"
+                                f"{' (the disk is full)' if exc.errno in (errno.ENOSPC, errno.EDQUOT) else ''}")
+            raise StudyLogWriteError(f"{self.write_error}; nothing was recorded, everything before is safe") \
+                from None
+        self._end += len(line)
+        self.write_error = None
 
     def record_response(self, **payload: Any) -> dict:
         """Append a trial's response unless it already has one (then raise DuplicateResponse, nothing written)."""
@@ -373,6 +412,12 @@ def _write_durably(fd: int, line: bytes) -> None:
     while view:
         n = os.write(fd, view)
         view = view[n:]
+    os.fsync(fd)
+
+
+def _cut_back(fd: int, size: int) -> None:
+    """Drop whatever follows the last valid record (the bytes of a failed append), durably."""
+    os.ftruncate(fd, size)
     os.fsync(fd)
 
 

@@ -20,6 +20,7 @@ from kiosk.config import loader
 from kiosk.service.config import KioskConfig, config_from_mapping
 from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
+from kiosk.ops.health import storage_check
 from kiosk.ops.logsetup import configure_logging, say_line
 from kiosk.ops.signals import on_signals
 from kiosk.inference.scene import Panel, Scene, SketchInput
@@ -172,6 +173,7 @@ class StudyRuntime:
             self.daemon.server.route("GET", "/api/study/", self.service.http_get)
             self.daemon.server.route("POST", "/api/study/", self.service.http_post)
             self.daemon.add_control_handler("study.", self.service.control)
+            self.daemon.add_health_check("study_log", storage_check(config.log, self.service.log_error))
             self.service.start_timer()
         except BaseException:
             self.close()

@@ -16,6 +16,11 @@ Everything else a participant or page can do is ignored *and logged* as an event
 a tap with no session running. Codes that the study does not accept are refused and logged (without echoing text
 that is not a code). After a crash the most recent unfinished session is resumed at its first unanswered trial
 (logged as a `resume` record); trials answered before the crash are never asked again.
+
+When the log cannot be written (a full disk), nothing is acknowledged: the page is told to ask the participant to
+call the researcher, the kiosk log and the `study_log` health check say why, and the trial clock stops. The timer
+retries once a second; the first record that goes through again is an event saying how long the log was down, and
+the current trial is presented afresh (a new token, as after a restart), all without restarting the kiosk.
 """
 from __future__ import annotations
 
@@ -31,7 +36,7 @@ from kiosk.contract.errors import InputError, KioskError
 from kiosk.inference.scene import Panel, Scene
 from kiosk.study.bundles import StudyBundles
 from kiosk.study.config import CODE_RE, ParticipantError, StudyConfig
-from kiosk.study.log import DuplicateResponse, StudyLog
+from kiosk.study.log import DuplicateResponse, StudyLog, StudyLogWriteError
 from kiosk.study.records import response_payload, session_payload
 from kiosk.study.schedule import SIDES, Schedule, Trial, make_schedule
 
@@ -40,6 +45,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+CALL_RESEARCHER = "Please call the researcher: the kiosk cannot record answers right now."
+RETRY_S = 1.0           # how often a study log that refused a write is tried again
 GAP_FRACTION = 0.02     # gap between the two panels, of the screen width
 BAR_FRACTION = 0.16     # the button bar at the bottom, of the screen height
 
@@ -116,6 +123,8 @@ class StudyService:
         self._stop = threading.Event()
         self._tick_s = tick_s
         self._thread: threading.Thread | None = None
+        self._outage: dict | None = None   # the study log refused a write: {"error", "wall", "mono"}
+        self._next_retry = 0.0
         if auto_resume:
             self._resume_after_restart()
 
@@ -133,9 +142,57 @@ class StudyService:
     def _timer(self) -> None:
         while not self._stop.wait(self._tick_s):
             try:
-                self.check_timeout()
+                if self._outage is not None:
+                    self.retry_log()
+                else:
+                    self.check_timeout()
+            except StudyLogWriteError as exc:
+                with self._lock:
+                    self._log_down(exc)
             except Exception:  # noqa: BLE001 - the timer must survive anything; the log says what happened
                 log.exception("study timer")
+
+    # -- a study log that refuses writes ---------------------------------------------------------------------------
+    def _log_down(self, exc: StudyLogWriteError) -> None:
+        """Called with the lock held: stop the trial (clock and taps) until the log takes a record again."""
+        if self._outage is None:
+            self._outage = {"error": str(exc), "wall": self.log.stamp()["wall"], "mono": time.monotonic()}
+            log.error("study %s: %s; the page asks the participant to call the researcher, and recording resumes "
+                      "by itself once the log can be written", self.config.id, exc)
+            if self._active is not None:
+                self._active.deadline = None
+        self._next_retry = time.monotonic() + RETRY_S
+
+    def log_error(self) -> str | None:
+        """Why the study log cannot take records now (None while it can): for the health check."""
+        outage = self._outage
+        return None if outage is None else f"{outage['error']} (since {outage['wall'][:19]}Z)"
+
+    def retry_log(self, *, force: bool = False) -> bool:
+        """Try the study log again (at most every RETRY_S unless `force`); True once it takes a record."""
+        with self._lock:
+            if self._outage is None:
+                return True
+            if not force and time.monotonic() < self._next_retry:
+                return False
+            outage = self._outage
+            try:
+                self.log.append("event", kind="log_write_failed", detail=outage["error"][:300],
+                                since=outage["wall"], down_s=round(time.monotonic() - outage["mono"], 3),
+                                **self.log.stamp())
+            except StudyLogWriteError as exc:
+                self._log_down(exc)
+                return False
+            self._outage = None
+            log.warning("study %s: the study log takes records again after %.0f s; recording resumes",
+                        self.config.id, time.monotonic() - outage["mono"])
+            if self._active is not None:
+                try:
+                    self._present_next()   # a fresh token and clock for the trial that was cut off
+                except StudyLogWriteError as exc:
+                    self._log_down(exc)
+                    return False
+            return True
 
     # -- operator ------------------------------------------------------------------------------------------------
     def start(self, participant: object, *, new_session: bool = False) -> dict:
@@ -194,7 +251,7 @@ class StudyService:
     def status(self) -> dict:
         with self._lock:
             out = {"study_id": self.config.id, "log": str(self.log.path), "sessions": len(self.log.state.sessions),
-                   "responses": len(self.log.state.responses()), "active": None}
+                   "responses": len(self.log.state.responses()), "active": None, "log_error": self.log_error()}
             if self._active is not None:
                 out["active"] = self._summary()
             if self._finished is not None:
@@ -225,8 +282,12 @@ class StudyService:
             self._event("resume_impossible", participant=s.participant, session=s.session, detail=str(exc))
             return
         self._active = _Active(schedule)
-        self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
-                        at_trial=s.next_trial(), **self.log.stamp())
+        try:
+            self.log.append("resume", participant=s.participant, session=s.session, reason="restart",
+                            at_trial=s.next_trial(), **self.log.stamp())
+        except StudyLogWriteError as exc:   # started on a full disk: wait for space like a running study does
+            self._log_down(exc)
+            return
         self._present_next()
 
     def _check_resumable(self, started: dict, schedule: Schedule) -> None:
@@ -274,6 +335,8 @@ class StudyService:
 
     def page_state(self) -> dict:
         with self._lock:
+            if self._outage is not None:
+                return {"state": "call_researcher", "notice": CALL_RESEARCHER}
             a = self._active
             if a is None:
                 if self._finished is not None:
@@ -346,13 +409,16 @@ class StudyService:
                 return self._ignore("double_tap", participant=a.key[0], session=a.key[1], trial=a.trial.index,
                                     side=side)
             self._remember(a.token, a.key, a.trial.index, "answered")
-            self._present_next()
+            try:
+                self._present_next()
+            except StudyLogWriteError as exc:   # the choice is durable; only what follows it waits for space
+                self._log_down(exc)
             return {"recorded": True, "trial": rec["trial"], "side": side, "seq": rec["seq"]}
 
     def check_timeout(self) -> None:
         with self._lock:
             a = self._active
-            if a is not None and a.deadline is not None and time.monotonic() >= a.deadline:
+            if self._outage is None and a is not None and a.deadline is not None and time.monotonic() >= a.deadline:
                 self._record_timeout(a)
 
     def _record_timeout(self, a: _Active) -> None:
@@ -404,13 +470,21 @@ class StudyService:
         body = req.json()
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
-        if req.path == "/api/study/shown":
-            _only(body, {"token"})
-            return Response.json(self.shown(body.get("token")))
-        if req.path == "/api/study/choice":
-            _only(body, {"token", "side"})
+        if req.path not in ("/api/study/shown", "/api/study/choice"):
+            return Response.error(404, f"nothing at {req.path}")
+        _only(body, {"token"} if req.path == "/api/study/shown" else {"token", "side"})
+        unavailable = Response.json({"recorded": False, "error": "the study log cannot be written; nothing was "
+                                     "recorded", "notice": CALL_RESEARCHER}, 503)
+        if self._outage is not None:
+            return unavailable
+        try:
+            if req.path == "/api/study/shown":
+                return Response.json(self.shown(body.get("token")))
             return Response.json(self.choose(body.get("token"), body.get("side")))
-        return Response.error(404, f"nothing at {req.path}")
+        except StudyLogWriteError as exc:
+            with self._lock:
+                self._log_down(exc)
+            return unavailable
 
     def control(self, request: dict) -> dict:
         """Control-socket ops: study.start {participant, new_session}, study.status, study.stop."""
@@ -423,6 +497,10 @@ class StudyService:
                 return {"ok": True, **self.status()}
             if op == "study.stop":
                 return {"ok": True, **self.stop()}
+        except StudyLogWriteError as exc:
+            with self._lock:
+                self._log_down(exc)
+            return {"ok": False, "error": str(exc)}
         except KioskError as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown study op {op!r} (study.start, study.status, study.stop)"}

@@ -57,6 +57,10 @@ def test_export_fp16_bundle_verifies(run_dir, tmp_path):
     b = open_bundle(tmp_path / "g.vtb", None, workdir=tmp_path / "w", allow_unsigned=True)
     assert set(b.manifest.graphs) == {"full", "tactile", "visual"}
     assert b.manifest.friction_scale > 0 and b.asset("visual").ndim == 3
+    # The trainer recorded the synthetic garment's own pitch; the mapping and its calibrated constants travel along.
+    assert b.manifest.pixel_pitch_mm == 0.3
+    c = b.manifest.friction_constants
+    assert b.manifest.friction_normalization == "perceptual" and 0 < c["gz_low"] < c["gz_high"]
     assert [r.graph for r in probe_bundle(b)] == ["full", "tactile", "visual"]
 
 
@@ -93,3 +97,16 @@ def test_run_metrics_are_flattened_for_the_manifest():
     doc = {"train": {"step": 500, "val": {"psnr": 25.7, "nan": float("nan")}, "method": "ours", "ok": True},
            "eval": {"full_angle_deg": 15.4}, "list": [1, 2]}
     assert _numbers(doc) == {"train.step": 500.0, "train.val.psnr": 25.7, "eval.full_angle_deg": 15.4}
+
+
+def test_cli_int8_export_prints_progress_only(run_dir, tmp_path):
+    """An int8 export (the chattiest path: torch.onnx, the quantiser) shows our stage lines and nothing else; the
+    libraries' output is kept in the log beside the bundle."""
+    proc = vtk("export", "--run", run_dir, "--out", tmp_path / "q.vtb", "--precision", "int8", "--sizes", "256",
+               "--force")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    lines = proc.stdout.strip().splitlines()
+    assert all(line.startswith(("export: ", "wrote ")) for line in lines), lines
+    assert any("graph int8 vs fp32" in line for line in lines) and lines[-1].startswith("wrote ")
+    assert (tmp_path / "q.vtb.log").is_file()

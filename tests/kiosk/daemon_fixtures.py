@@ -70,7 +70,7 @@ def demo_build(tmp_path_factory, steps: int = 2) -> tuple[Path, Path, str]:
 
     root = Path(__file__).resolve().parents[2]
     workdir = Path(os.environ.get("VTKIOSK_TEST_DEMO_DIR") or tmp_path_factory.getbasetemp() / "demo-build")
-    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "demo", "--workdir", str(workdir), "--steps", str(steps),
+    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "demo", "--quick", "--workdir", str(workdir), "--steps", str(steps),
                            "--build-only"], cwd=root, capture_output=True, text=True, timeout=1200)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (bundle,) = sorted((workdir / "bundles").glob("*/demo.vtb"))

@@ -1,5 +1,5 @@
-"""systemd/: the units verify cleanly, the daemon's unit rates <= 2.0 exposure, and the unit, sysusers, tmpfiles,
-udev rule, production config and browser unit agree with each other.
+"""systemd/: the units verify cleanly, the daemon's and the fleet sync's units rate <= 2.0 exposure, and the units,
+sysusers, tmpfiles, udev rule, production config and browser unit agree with each other.
 
 `systemd-analyze verify` checks that every ExecStart binary exists. The shipped unit names the operator's install
 path (/opt/vtkiosk/bin/vtkiosk), which does not exist on a build machine, so the test verifies a copy whose
@@ -49,9 +49,9 @@ def real_vtkiosk() -> Path:
 @pytest.fixture
 def unit_dir(tmp_path):
     """The units as shipped, except that ExecStart names this environment's real vtkiosk."""
-    for name in ("vtkiosk.service", "vtkiosk-browser.service"):
+    for name in ("vtkiosk.service", "vtkiosk-browser.service", "vtkiosk-sync.service", "vtkiosk-sync.timer"):
         text = (UNITS / name).read_text()
-        if name == "vtkiosk.service":
+        if name in ("vtkiosk.service", "vtkiosk-sync.service"):
             assert text.count(INSTALL_EXEC) == 1
             text = text.replace(INSTALL_EXEC, str(real_vtkiosk()))
         (tmp_path / name).write_text(text)
@@ -63,13 +63,25 @@ def verify(*paths: Path) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
-@pytest.mark.parametrize("name", ["vtkiosk.service", "vtkiosk-browser.service"])
+@pytest.mark.parametrize("name", ["vtkiosk.service", "vtkiosk-browser.service", "vtkiosk-sync.service"])
 def test_units_verify_without_a_single_warning(unit_dir, name):
     for exe in unit_settings(unit_dir / name)["ExecStart"][0].split()[:1]:
         assert Path(exe).is_file(), f"{exe} is not installed (scripts/setup.sh installs cage and chromium)"
     proc = verify(unit_dir / name)
     assert proc.returncode == 0 and proc.stdout.strip() == "" and proc.stderr.strip() == "", \
         proc.stdout + proc.stderr
+
+
+def test_sync_timer_verifies_with_its_service_and_names_it(unit_dir):
+    proc = verify(unit_dir / "vtkiosk-sync.timer", unit_dir / "vtkiosk-sync.service")
+    assert proc.returncode == 0 and proc.stdout.strip() == "" and proc.stderr.strip() == "", \
+        proc.stdout + proc.stderr
+    timer = {k: v[-1] for k, v in unit_settings(UNITS / "vtkiosk-sync.timer").items()}
+    assert timer["Unit"] == "vtkiosk-sync.service" and timer["WantedBy"] == "timers.target"
+    assert timer["RandomizedDelaySec"] and timer["OnUnitInactiveSec"]  # spread out, and never overlapping runs
+    bad = unit_dir / "vtkiosk-sync.timer"
+    bad.write_text(bad.read_text().replace("OnBootSec", "OnBootSecs"))
+    assert "Unknown key" in verify(bad, unit_dir / "vtkiosk-sync.service").stderr
 
 
 def test_verify_does_catch_mistakes(unit_dir):
@@ -105,6 +117,30 @@ def test_daemon_unit_exposure_is_at_most_2(unit_dir):
     assert exposure(unit_dir / "vtkiosk.service", threshold=20)[1].returncode == 0
     assert exposure(unit_dir / "vtkiosk.service", threshold=tenths)[1].returncode == 0
     assert exposure(unit_dir / "vtkiosk.service", threshold=tenths - 1)[1].returncode != 0
+
+
+def test_sync_unit_exposure_is_at_most_2(unit_dir):
+    score, proc = exposure(unit_dir / "vtkiosk-sync.service")
+    assert score <= MAX_EXPOSURE, proc.stdout
+    tenths = round(score * 10)
+    assert exposure(unit_dir / "vtkiosk-sync.service", threshold=tenths)[1].returncode == 0
+    assert exposure(unit_dir / "vtkiosk-sync.service", threshold=tenths - 1)[1].returncode != 0
+
+
+def test_sync_unit_is_hardened_like_the_daemon_and_shares_its_identity():
+    sync = {k: v[-1] for k, v in unit_settings(UNITS / "vtkiosk-sync.service").items()}
+    daemon = {k: v[-1] for k, v in unit_settings(UNITS / "vtkiosk.service").items()}
+    for key in ("NoNewPrivileges", "CapabilityBoundingSet", "ProtectSystem", "ProtectHome", "PrivateTmp",
+                "MemoryDenyWriteExecute", "RestrictNamespaces", "SystemCallArchitectures", "LockPersonality",
+                "RestrictSUIDSGID", "ProtectKernelTunables", "ProtectKernelModules", "ProtectControlGroups",
+                "ProtectProc", "DevicePolicy", "User", "Group", "StateDirectory"):
+        assert sync.get(key) == daemon.get(key), key
+    assert sync["PrivateDevices"] == "yes"  # unlike the daemon, it needs no device at all
+    assert unit_settings(UNITS / "vtkiosk-sync.service")["SystemCallFilter"][0] == "@system-service"
+    assert sync["Type"] == "oneshot" and sync["SuccessExitStatus"] == "75"  # offline repository: not a failure
+    assert sync["ExecStart"].split()[1:] == ["fleet", "sync", "--config", "/etc/vtkiosk/kiosk.yaml"]
+    assert sync["ExecStart"].split()[0] == daemon["ExecStart"].split()[0]
+    assert int(sync["CPUWeight"]) < 100 and int(sync["Nice"]) > 0  # the daemon wins every contest for the CPU
 
 
 def test_hardening_that_matters_is_present():

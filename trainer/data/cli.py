@@ -24,6 +24,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     synth.add_argument("--garments", type=int, default=6, help="number of garments (default 6: every fabric)")
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument("--frame", type=_frame, default=(1280, 960), help="camera frame WxH (default 1280x960)")
+    synth.add_argument("--profile", choices=("hard", "easy"), default="hard",
+                       help="hard (default): sparse touches (1/6 of the frame), prints, folds, lamp, camera model, "
+                            "registration jitter; easy: the generator before profiles, bit for bit (docs/data.md)")
     synth.add_argument("--sheets", type=Path, default=None, help="also write one contact sheet per garment here")
     synth.add_argument("--no-progress", action="store_true")
     show = sub.add_parser("show", help="write a contact sheet of a garment (or of every garment in a dataset)")
@@ -58,10 +61,11 @@ def main(argv: list[str], prog: str = "vtkiosk data") -> int:
         t0 = time.perf_counter()
         try:
             paths = generate_dataset(args.out, garments=args.garments, seed=args.seed, frame=args.frame,
-                                     progress=not args.no_progress)
+                                     progress=not args.no_progress, profile=args.profile)
         except ValueError as exc:
             raise InputError(str(exc)) from exc
-        print(f"wrote {len(paths)} garment(s) to {args.out} in {time.perf_counter() - t0:.1f} s")
+        print(f"wrote {len(paths)} garment(s) ({args.profile} profile) to {args.out} in "
+              f"{time.perf_counter() - t0:.1f} s")
         if args.sheets is not None:
             for p in _show(args.out, args.sheets, 480):
                 print(f"contact sheet: {p}")

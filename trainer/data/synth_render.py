@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from trainer.data.synth_fabrics import FabricParams, band_noise, texture
+from trainer.data.synth_realism import Realism, camera, fold_height, lamp, mottle, print_alpha
 from trainer.data.synth_shapes import Layout
 
 SHIFT = 4  # cv2 sub-pixel bits for polygon vertices
@@ -37,13 +38,20 @@ class Decor:
 
 @dataclass
 class Rendered:
-    """Frame-sized outputs: rgb uint8 (H, W, 3), mask bool, height_mm float32, gx/gy float32 slopes (0 outside)."""
+    """Frame-sized outputs: rgb uint8 (H, W, 3), mask bool, height_mm float32, gx/gy float32 slopes (0 outside).
+
+    With a `Realism`: sketch_rgb, the clean construction image the sketch is drawn from (no print, folds, lamp or
+    camera: what the paper's manual clean-up of the edge map keeps), and fold_mm, the low-frequency fold height
+    that shades the photo but is not in the tactile truth.
+    """
 
     rgb: np.ndarray
     mask: np.ndarray
     height_mm: np.ndarray
     gx: np.ndarray
     gy: np.ndarray
+    sketch_rgb: np.ndarray | None = None
+    fold_mm: np.ndarray | None = None
 
 
 def _px(pts: list[tuple[float, float]]) -> np.ndarray:
@@ -169,8 +177,12 @@ def gradients(height_mm: np.ndarray, pitch_mm: float) -> tuple[np.ndarray, np.nd
 
 def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tuple[float, float, float],
            decor: Decor, background_rgb: tuple[float, float, float], frame: tuple[int, int], pitch_mm: float,
-           rng: np.random.Generator) -> Rendered:
-    """Render one garment (layout already in frame pixels) into height, slopes, mask and a camera RGB image."""
+           rng: np.random.Generator, realism: Realism | None = None) -> Rendered:
+    """Render one garment (layout already in frame pixels) into height, slopes, mask and a camera RGB image.
+
+    `realism` (the hard profile) adds folds, a print, dye mottling, a lamp with falloff and a camera model; None
+    (the easy profile) renders exactly as the generator did before profiles.
+    """
     w, h = frame
     shape = (h, w)
     s = max(w / 1280.0, 0.25)  # feature widths follow the frame; texture follows the pitch
@@ -262,6 +274,8 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
     gx[~mask] = 0.0
     gy[~mask] = 0.0
 
+    folds = fold_height(shape, mask, realism, pitch_mm) if realism is not None else None
+
     # albedo
     amp = max(fabric.amplitude_mm, 1e-6)
     sign = -1.0 if fabric.name == "denim" else 1.0  # denim: white weft shows in the valleys
@@ -274,13 +288,26 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
         stripe = (np.mod(u_map / np.float32(period), 1.0) < 0.3).astype(np.float32)
         stripe = cv2.GaussianBlur(stripe, (0, 0), 0.7) * mask
         alb = _mix(alb, stripe * np.float32(0.85), decor.stripe_rgb)
-    alb *= (1 - 0.05 * layers - 0.10 * _ridge(seams_u8, 1.0))[..., None]
-    alb = _mix(alb, stitch * np.float32(0.8), decor.thread_rgb)
-    alb = _mix(alb, text_alpha * mask, decor.print_rgb)
-    fl_mod = (1 + 0.15 * felt / 0.03 * 0.3)[..., None]
-    alb = _mix(alb, petal_a, decor.petal_rgb) * np.where(flower_a[..., None] > 0, fl_mod, 1)
-    alb = _mix(alb, centre_a, decor.centre_rgb)
-    alb = _mix(alb, btn_a, decor.button_rgb) * (1 - 0.6 * btn_holes)[..., None]
+
+    def on_cloth(alb: np.ndarray) -> np.ndarray:
+        """Seams, stitching, the printed word, appliques and buttons: what sits on the cloth."""
+        if realism is None:
+            alb *= (1 - 0.05 * layers - 0.10 * _ridge(seams_u8, 1.0))[..., None]
+        else:  # seams in matching thread: relief, no colour of their own
+            alb = alb * (1 - 0.05 * layers)[..., None]
+        alb = _mix(alb, stitch * np.float32(0.8), decor.thread_rgb)
+        alb = _mix(alb, text_alpha * mask, decor.print_rgb)
+        fl_mod = (1 + 0.15 * felt / 0.03 * 0.3)[..., None]
+        alb = _mix(alb, petal_a, decor.petal_rgb) * np.where(flower_a[..., None] > 0, fl_mod, 1)
+        alb = _mix(alb, centre_a, decor.centre_rgb)
+        return _mix(alb, btn_a, decor.button_rgb) * (1 - 0.6 * btn_holes)[..., None]
+
+    clean_alb = None
+    if realism is not None:
+        clean_alb = on_cloth(alb.copy())
+        alb = alb * mottle(shape, realism, pitch_mm)
+        alb = _mix(alb, print_alpha(shape, realism, pitch_mm, u_map) * mask, realism.print_rgb)
+    alb = on_cloth(alb)
 
     # shading: Lambert from the height field's normals (exaggerated), a little Blinn-Phong for shiny fabric
     k = np.float32(EXAGGERATION)
@@ -294,6 +321,11 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
     ndh = np.clip((nx * hv[0] + ny * hv[1] + hv[2]) * inv, 0, None)
     spec = np.float32(fabric.specular) * ndh ** np.float32(30)
     garment = alb * shade[..., None] + spec[..., None]
+    clean = None
+    falloff = None
+    if realism is not None:
+        clean = clean_alb * shade[..., None] + spec[..., None]
+        garment, falloff = _lamp_shading(alb, gx, gy, folds, height_mm, realism, fabric.specular, pitch_mm)
 
     # background table with a soft contact shadow; blend by the anti-aliased coverage
     bg = np.asarray(background_rgb, np.float32)[None, None, :] * (
@@ -304,6 +336,13 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
     shadow = cv2.GaussianBlur(shadow, (0, 0), 10.0 * s)
     bg = bg * (1 - 0.3 * shadow)[..., None]
     cover = _f(cover_u8)[..., None]
+    if realism is not None:
+        sketch_img = cv2.GaussianBlur((clean * cover + bg * (1 - cover)).astype(np.float32), (0, 0), 0.6)
+        table = bg * (np.float32(0.3) + np.float32(0.6) * falloff)[..., None]  # the lamp lights the table too
+        img = camera(garment * cover + table * (1 - cover), realism)
+        return Rendered(rgb=np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8), mask=mask, height_mm=height_mm,
+                        gx=gx, gy=gy, sketch_rgb=np.clip(sketch_img * 255 + 0.5, 0, 255).astype(np.uint8),
+                        fold_mm=folds)
     img = garment * cover + bg * (1 - cover)
 
     # camera: mild blur and sensor noise
@@ -311,3 +350,21 @@ def render(layout: Layout, garment_px: float, fabric: FabricParams, base_rgb: tu
     img += drng.normal(0.0, 1.8 / 255, img.shape).astype(np.float32)
     rgb = np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8)
     return Rendered(rgb=rgb, mask=mask, height_mm=height_mm, gx=gx, gy=gy)
+
+
+def _lamp_shading(alb: np.ndarray, gx: np.ndarray, gy: np.ndarray, folds: np.ndarray, height_mm: np.ndarray,
+                  realism: Realism, specular: float, pitch_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Garment radiance under the fixed lamp: normals from the weave (exaggerated as in the easy profile) tilted
+    by the folds' true slopes; Lambert x inverse-square falloff plus ambient, Blinn-Phong towards the camera."""
+    fgy, fgx = np.gradient(folds, np.float32(pitch_mm))
+    k = np.float32(EXAGGERATION)
+    nx, ny = -k * gx - fgx.astype(np.float32), -k * gy - fgy.astype(np.float32)
+    inv = 1 / np.sqrt(nx * nx + ny * ny + 1)
+    ldir, falloff = lamp(gx.shape, realism, pitch_mm, height_mm + folds)
+    ndl = np.clip((nx * ldir[..., 0] + ny * ldir[..., 1] + ldir[..., 2]) * inv, 0, None)
+    shade = np.float32(0.25) + np.float32(0.85) * ndl * falloff
+    hv = ldir + np.array([0, 0, 1], np.float32)
+    hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
+    ndh = np.clip((nx * hv[..., 0] + ny * hv[..., 1] + hv[..., 2]) * inv, 0, None)
+    spec = np.float32(specular) * ndh ** np.float32(30) * falloff
+    return alb * shade[..., None] + spec[..., None], falloff

@@ -6,8 +6,13 @@ paper's 75th-percentile rule), and `fullT/` with the dense slopes the real captu
 real and synthetic sets; `synthetic.yaml` makes each garment self-describing.
 
 Frames other than 1280x960 keep the 0.3 mm pitch (a smaller garment, same cloth), scale the padded square
-P = round(1800 W / 1280) (even) and the sensor rectangle with the frame (at least 48 x 40 px so 32x32 patches fit),
-and record max(20, round(250 x frame area / (1280 x 960))) touches instead of 250.
+P = round(1800 W / 1280) (even) and the sensor rectangle with the frame (at least 48 x 40 px so 32x32 patches fit).
+
+Two profiles. `hard` (the default) is closer to the paper's capture: the touch rectangles cover about 1/6 of the
+frame at every frame size, and the photo is partly independent of the touch field (prints, dye mottling, seams in
+matching thread, folds, a fixed lamp, a camera model, registration jitter between photo and touches;
+`synth_realism.py`). `easy` is the generator as it was before profiles, bit for bit: Lambert shading of the touch
+field itself, and max(20, round(250 x frame area / (1280 x 960))) touches covering most of the garment.
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ import os
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -24,11 +29,12 @@ import numpy as np
 import yaml
 
 from trainer.data.synth_fabrics import FABRICS, FabricParams, sample_fabric
+from trainer.data.synth_realism import Realism, sample_realism
 from trainer.data.synth_render import Decor, Rendered, render
 from trainer.data.synth_shapes import SHAPES, build, fit_to_frame
 
-__all__ = ["FABRICS", "SHAPES", "GarmentSpec", "default_specs", "generate_dataset", "generate_garment",
-           "padded_geometry", "sensor_rect_size", "touch_target"]
+__all__ = ["FABRICS", "PROFILES", "SHAPES", "GarmentSpec", "default_specs", "generate_dataset", "generate_garment",
+           "padded_geometry", "sensor_rect_size", "touch_coverage_target", "touch_target"]
 
 GENERATOR_VERSION = "1.0"
 PITCH_MM = 0.3  # mm per camera pixel, as in the published capture
@@ -39,6 +45,13 @@ PATCH = 32  # tactile patch side (px); patch centres keep PATCH // 2 px from the
 CONTACT_PERCENTILE = 75.0
 CONTACT_DILATION_PX = 1  # 3x3 dilation of the contact mask (the paper's guard against false negatives)
 MIN_FRAME = 128
+PROFILES = ("hard", "easy")
+DEFAULT_PROFILE = "hard"
+TOUCH_COVERAGE = 1 / 6  # hard: fraction of the camera frame under the union of touch rectangles (paper, supp.)
+# hard: ... but at most this fraction of the garment, so a slim garment (trousers fill ~20 % of the frame) still
+# leaves most of itself untouched to generalise to
+GARMENT_COVERAGE_CAP = 0.4
+REGISTRATION_JITTER_PX = 2.0  # hard: std of the photo-to-touch registration error at 1280x960, scaled with the frame
 SUBFOLDERS = ("trainS", "trainI", "trainM", "trainT", "valT", "testS", "testI", "testM", "testT")
 
 _PALETTES: dict[str, list[tuple[float, float, float]]] = {
@@ -203,6 +216,38 @@ def _touches(mask: np.ndarray, height_mm: np.ndarray, rect_hw: tuple[int, int], 
     return [(x, y) + cache[(x, y)] for x, y in found]
 
 
+def _coverage(touches: list, rect_hw: tuple[int, int], shape: tuple[int, int]) -> float:
+    """Fraction of the frame under the union of the touches' rectangles."""
+    cov = np.zeros(shape, bool)
+    for x, y, *_ in touches:
+        cov[y:y + rect_hw[0], x:x + rect_hw[1]] = True
+    return float(cov.mean())
+
+
+def touch_coverage_target(mask: np.ndarray) -> float:
+    """Hard profile: the fraction of the frame the touch rectangles should cover, min(1/6, 0.4 x garment share)."""
+    return float(min(TOUCH_COVERAGE, GARMENT_COVERAGE_CAP * mask.mean()))
+
+
+def _touches_by_coverage(mask: np.ndarray, height_mm: np.ndarray, rect_hw: tuple[int, int],
+                         rng: np.random.Generator) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Hard profile: as many touches as it takes for their rectangles to cover `touch_coverage_target` (within
+    half a rectangle), placed like `_touches`. Each count is tried with the same stream, so the result is seeded."""
+    state = rng.bit_generator.state
+    target = touch_coverage_target(mask) * mask.size
+    n = max(5, int(np.ceil(target / (rect_hw[0] * rect_hw[1]))))
+    best: list = []
+    for _ in range(12):
+        rng.bit_generator.state = state
+        found = _touches(mask, height_mm, rect_hw, n, rng)
+        cov = _coverage(found, rect_hw, mask.shape) * mask.size
+        best = found
+        if cov >= target - 0.5 * rect_hw[0] * rect_hw[1] or len(found) < n:
+            break
+        n += max(1, int(round((target - cov) / (rect_hw[0] * rect_hw[1]))))
+    return best
+
+
 def _contact(height: np.ndarray, dilate_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Paper's contact rule: height above its 75th percentile, dilated; patch centres >= 16 px inside, eroded."""
     hi = height > np.percentile(height, CONTACT_PERCENTILE)
@@ -223,7 +268,14 @@ def _write_png(path: Path, img: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
-def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int] = DEFAULT_FRAME) -> Path:
+def _check_profile(profile: object) -> str:
+    if profile not in PROFILES:
+        raise ValueError(f"unknown data profile {profile!r}; expected one of {', '.join(PROFILES)}")
+    return str(profile)
+
+
+def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int] = DEFAULT_FRAME,
+                     profile: str = DEFAULT_PROFILE) -> Path:
     """Render one garment and write `singleskit_<Name>_padded_<P>_x1/` under out_dir; returns that folder.
 
     An existing folder of the same name is replaced (written to a temporary sibling, then renamed).
@@ -231,16 +283,27 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
     from kiosk.contract.sketch import sketch_from_image  # the kiosk's own sketch rule, so synthetic sketches match it
 
     spec.validate()
+    hard = _check_profile(profile) == "hard"
     w, h = _check_frame(frame)
     p, ox, oy = padded_geometry((w, h))
     ss = np.random.SeedSequence(int(spec.seed))
     r_shape, r_fabric, r_colour, r_render, r_touch = (np.random.default_rng(s) for s in ss.spawn(5))
+    # the hard profile's extra draws come from a stream of their own, so the easy profile's streams are untouched
+    r_hard = np.random.default_rng(np.random.SeedSequence([int(spec.seed), 1]))
 
     layout, garment_px = fit_to_frame(build(spec.shape, r_shape), (w, h), r_shape)
     fabric: FabricParams = sample_fabric(spec.fabric, r_fabric)
     base, decor, table = _colours(spec, r_colour)
-    ren: Rendered = render(layout, garment_px, fabric, base, decor, table, (w, h), PITCH_MM, r_render)
-    sketch = np.asarray(sketch_from_image(ren.rgb, ren.mask), dtype=np.uint8)
+    realism: Realism | None = None
+    if hard:
+        decor = replace(decor, thread_rgb=base)  # seams and stitching in matching thread
+        pts = np.concatenate([np.asarray(poly, np.float64) for poly, _ in layout.panels])
+        realism = sample_realism(r_hard, frame=(w, h), pitch_mm=PITCH_MM, bbox=(*pts.min(0), *pts.max(0)),
+                                 base_rgb=base)
+    ren: Rendered = render(layout, garment_px, fabric, base, decor, table, (w, h), PITCH_MM, r_render,
+                           realism=realism)
+    sketch_src = ren.sketch_rgb if ren.sketch_rgb is not None else ren.rgb
+    sketch = np.asarray(sketch_from_image(sketch_src, ren.mask), dtype=np.uint8)
     if sketch.shape != (h, w):
         raise ValueError(f"sketch_from_image returned shape {sketch.shape}, expected {(h, w)}")
 
@@ -265,18 +328,29 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
         shutil.copyfile(tmp / f"train{key}" / fname, tmp / f"test{key}" / fname)
 
     rh, rw = sensor_rect_size((w, h))
-    touches = _touches(ren.mask, ren.height_mm, (rh, rw), touch_target((w, h)), r_touch)
+    if hard:
+        touches = _touches_by_coverage(ren.mask, ren.height_mm, (rh, rw), r_touch)
+    else:
+        touches = _touches(ren.mask, ren.height_mm, (rh, rw), touch_target((w, h)), r_touch)
     order = r_touch.permutation(len(touches))
     n_train, n_val = int(round(0.6 * len(touches))), int(round(0.2 * len(touches)))
     split = {}
     for rank, i in enumerate(order):
         split[int(i)] = "trainT" if rank < n_train else ("valT" if rank < n_train + n_val else "testT")
+    jitter_px = REGISTRATION_JITTER_PX * w / DEFAULT_FRAME[0]
+    jitters = []
     for i, (x0, y0, thresh, centre) in enumerate(touches):
         noise = r_touch.normal(0.0, SENSOR_NOISE, (2, rh, rw)).astype(np.float32)
+        # hard: the recorded rectangle (marker tracking) is off the pressed one by a small registration error
+        rx, ry = x0, y0
+        if hard:
+            dx, dy = np.round(r_hard.normal(0.0, jitter_px, 2)).astype(int)
+            rx, ry = int(np.clip(x0 + dx, 0, w - rw)), int(np.clip(y0 + dy, 0, h - rh))
+            jitters.append([rx - x0, ry - y0])
         np.savez_compressed(
             tmp / split[i] / f"{stem}_{i + 1:04d}_tactile.npz",
             gx_raw=ren.gx[y0:y0 + rh, x0:x0 + rw] + noise[0], gy_raw=ren.gy[y0:y0 + rh, x0:x0 + rw] + noise[1],
-            vision_mask_x=np.int64(x0), vision_mask_y=np.int64(y0), vision_mask_h=np.int64(rh),
+            vision_mask_x=np.int64(rx), vision_mask_y=np.int64(ry), vision_mask_h=np.int64(rh),
             vision_mask_w=np.int64(rw), touch_thresh=thresh, touch_center_thresh=centre)
 
     np.savez_compressed(tmp / "fullT" / f"{stem}_full_tactile.npz",
@@ -300,6 +374,22 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
         "touches": len(touches), "split": counts,
         "slope_percentiles_on_mask": {str(q): float(np.percentile(np.abs(ren.gx[ren.mask]), q)) for q in (50, 95, 99)},
     }
+    if hard:  # easy keeps its metadata byte-identical (an absent `profile` reads as easy)
+        meta = {"profile": "hard", **meta}
+        meta["touch_coverage_target"] = round(touch_coverage_target(ren.mask), 4)
+        meta["touch_coverage_of_frame"] = round(_coverage(touches, (rh, rw), (h, w)), 4)
+        meta["touch_coverage_of_garment"] = round(
+            _coverage(touches, (rh, rw), (h, w)) * h * w / max(int(ren.mask.sum()), 1), 4)
+        meta["realism"] = {
+            "folds": [[round(v, 3) for v in f] for f in realism.folds], "wrinkle_mm": realism.wrinkle_mm,
+            "fold_height_range_mm": [float(ren.fold_mm.min()), float(ren.fold_mm.max())],
+            "print": realism.print_kind, "print_period_mm": realism.print_period_mm,
+            "print_rgb": list(realism.print_rgb), "mottle": realism.mottle, "thread": "matching",
+            "lamp_xy_mm": list(realism.lamp_xy_mm), "lamp_height_mm": realism.lamp_height_mm,
+            "blur_px": realism.blur_px, "read_noise": realism.read_noise, "shot_gain": realism.shot_gain,
+            "registration_jitter_std_px": round(jitter_px, 3),
+            "registration_offsets_px": jitters,  # recorded minus pressed rectangle corner, per touch in serial order
+        }
     (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     shutil.rmtree(final, ignore_errors=True)
     os.replace(tmp, final)
@@ -310,22 +400,23 @@ def _worker_init() -> None:
     cv2.setNumThreads(1)
 
 
-def _one(args: tuple[Path, GarmentSpec, tuple[int, int]]) -> Path:
-    out_dir, spec, frame = args
-    return generate_garment(out_dir, spec, frame=frame)
+def _one(args: tuple[Path, GarmentSpec, tuple[int, int], str]) -> Path:
+    out_dir, spec, frame, profile = args
+    return generate_garment(out_dir, spec, frame=frame, profile=profile)
 
 
 def generate_dataset(out_dir: Path, *, garments: int = 6, seed: int = 0, frame: tuple[int, int] = DEFAULT_FRAME,
-                     progress: bool = True) -> list[Path]:
+                     progress: bool = True, profile: str = DEFAULT_PROFILE) -> list[Path]:
     """Generate `garments` garments (default_specs(garments, seed)) under out_dir; returns their folders in order.
 
     Uses two worker processes when there is more than one garment; the output does not depend on scheduling.
     """
     frame = _check_frame(frame)
+    profile = _check_profile(profile)
     specs = default_specs(garments, seed)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    jobs = [(out_dir, s, frame) for s in specs]
+    jobs = [(out_dir, s, frame, profile) for s in specs]
     bar = None
     if progress:
         from tqdm import tqdm

@@ -96,6 +96,20 @@ class Garment:
     def name(self) -> str:
         return self.root.name
 
+    @property
+    def profile(self) -> str:
+        """Which data this is: "real" (no synthetic.yaml), or the synthetic profile ("easy" when the file names none:
+        the generator before profiles)."""
+        if not (self.root / "synthetic.yaml").is_file():
+            return "real"
+        return str(self.meta.get("profile", "easy"))
+
+    @property
+    def pixel_pitch_mm(self) -> float | None:
+        """mm per padded-frame pixel, when the garment states it (synthetic.yaml); None for real data."""
+        v = self.meta.get("pixel_pitch_mm")
+        return float(v) if v is not None else None
+
     def touch_count(self) -> dict[str, int]:
         return {s: len(self.touches.get(s, [])) for s in SPLITS}
 

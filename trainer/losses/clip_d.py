@@ -52,8 +52,13 @@ class ClipD:
     def __init__(self, *, encoder_path: str | None, lr: float, betas: tuple[float, float], device="cpu"):
         self.net: ClipDiscriminator | None = None
         self.opt: torch.optim.Optimizer | None = None
-        if not encoder_path or not Path(encoder_path).is_file():
-            log.warning("clip-d: no CLIP encoder at %r; the vision-aided discriminator is skipped", encoder_path)
+        if not encoder_path:
+            log.info("clip-d: no CLIP encoder configured (pretrained.clip_encoder); the vision-aided "
+                     "discriminator is skipped")
+            return
+        if not Path(encoder_path).is_file():
+            log.warning("clip-d: pretrained.clip_encoder %s is not a file; the vision-aided discriminator is skipped",
+                        encoder_path)
             return
         self.net = ClipDiscriminator(encoder_path=encoder_path).to(device)
         self.opt = torch.optim.Adam(self.net.head.parameters(), lr=lr, betas=betas)

@@ -138,8 +138,11 @@ class Perceptual(nn.Module):
             elif not quiet:
                 log.warning("perceptual: no LPIPS linear weights (lpips_lin_path); VGG layers weighted uniformly")
         elif not quiet:
-            log.warning("perceptual: no VGG16 weights at %r; using the substitute (1-SSIM)+gradient L1 at 3 scales",
-                        vgg16_path)
+            # configured but missing is an operator's mistake; not configured is the documented fallback
+            (log.warning if vgg16_path else log.info)(
+                "perceptual: %s; using the substitute (1-SSIM)+gradient L1 at 3 scales",
+                f"pretrained.vgg16 {vgg16_path} is not a file" if vgg16_path else
+                "no VGG16 weights configured (pretrained.vgg16)")
 
     def train(self, mode: bool = True):
         super().train(mode)

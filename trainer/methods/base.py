@@ -8,6 +8,7 @@ from torch import nn
 
 from trainer.config import RunConfig
 from trainer.distributed import Dist, average_gradients, broadcast_module
+from trainer.recipe.ema import EMA
 from trainer.sampling import Batch
 
 
@@ -27,6 +28,20 @@ class Method(ABC):
         self.nets: dict[str, nn.Module] = {}
         self.opts: dict[str, torch.optim.Optimizer] = {}
         self.info: dict = {}
+        self.ema: EMA | None = None
+
+    def attach_ema(self, decay: float) -> None:
+        """Average G's weights from now on (`train.ema`); 0 leaves the raw weights in charge."""
+        self.ema = EMA(self.generator, decay) if decay > 0 else None
+
+    @property
+    def eval_generator(self) -> nn.Module:
+        """The weights that are validated, evaluated and exported: the average when there is one."""
+        return self.ema.model if self.ema is not None else self.generator
+
+    def after_step(self, step: int) -> None:
+        if self.ema is not None:
+            self.ema.update(self.generator, step)
 
     # --- distributed helpers -------------------------------------------------------------------------------
     def _wrap_generator(self) -> nn.Module:
@@ -51,9 +66,12 @@ class Method(ABC):
 
     # --- state ---------------------------------------------------------------------------------------------
     def state_dict(self) -> dict:
-        return {"generator": self.generator.state_dict(),
-                "nets": {k: v.state_dict() for k, v in self.nets.items()},
-                "opts": {k: v.state_dict() for k, v in self.opts.items()}}
+        state = {"generator": self.generator.state_dict(),
+                 "nets": {k: v.state_dict() for k, v in self.nets.items()},
+                 "opts": {k: v.state_dict() for k, v in self.opts.items()}}
+        if self.ema is not None:
+            state["ema"] = self.ema.state_dict()
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         self.generator.load_state_dict(state["generator"])
@@ -61,6 +79,10 @@ class Method(ABC):
             v.load_state_dict(state["nets"][k])
         for k, v in self.opts.items():
             v.load_state_dict(state["opts"][k])
+        if self.ema is not None:
+            if "ema" not in state:
+                raise KeyError("the checkpoint holds no weight average (train.ema was off when it was saved)")
+            self.ema.load_state_dict(state["ema"])
 
     def train(self) -> None:
         self.generator.train()

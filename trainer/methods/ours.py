@@ -19,6 +19,8 @@ from trainer.losses.perceptual import Perceptual, per_channel
 from trainer.methods.base import Method
 from trainer.models.discriminators import MultiScaleD
 from trainer.models.generator import TwoBranchUNet
+from trainer.recipe.diffaug import DiffAugment
+from trainer.recipe.texture import TextureStatsLoss
 from trainer.sampling import PATCH, Batch, cut
 
 
@@ -57,6 +59,10 @@ class Ours(Method):
         if self.clip.active:
             self.nets["CLIP"] = self.clip.net.head
             self.opts["CLIP"] = self.clip.opt
+        # D inputs: visual = (sketch, RGB); tactile = (gx, gy, sketch, RGB, contact)
+        self.aug_visual = DiffAugment(lc.diffaug, rgb=slice(1, 4), seed=cfg.train.seed)
+        self.aug_tactile = DiffAugment(lc.diffaug, rgb=slice(3, 6), seed=cfg.train.seed + 1)
+        self.texture = TextureStatsLoss().to(self.device) if lc.tactile_texture > 0 else None
         self._sync_nets()
         self.info = {"perceptual": self.perceptual.kind, "clip_d": "torchscript" if self.clip.active else "skipped",
                      "losses": {"visual_gan": self.visual_gan, "tactile_gan": self.tactile_gan,
@@ -85,9 +91,18 @@ class Ours(Method):
         return real, fake, unpaired
 
     def tactile_d(self, real: torch.Tensor, fake: torch.Tensor, unpaired: torch.Tensor):
-        """DT's outputs on (real, fake, unpaired); None for an empty unpaired set."""
+        """DT's outputs on (real, fake, unpaired); None for an empty unpaired set. Paired real and fake patches get
+        the same DiffAugment transform (feature matching compares them feature by feature)."""
         DT = self.nets["DT"]
+        real, fake = self.aug_tactile(real, fake)
+        (unpaired,) = self.aug_tactile(unpaired)
         return DT(real), DT(fake), (DT(unpaired) if len(unpaired) else None)
+
+    def visual_d(self, batch: Batch, visual: torch.Tensor, visual_fake: torch.Tensor):
+        """DI's outputs on (real, fake) images, both under the same DiffAugment transform."""
+        DI = self.nets["DI"]
+        real, fake = self.aug_visual(torch.cat([batch.sketch, visual], 1), torch.cat([batch.sketch, visual_fake], 1))
+        return DI(real), DI(fake)
 
     def tactile_gan_weight(self, step: int) -> float:
         """`loss.tactile_gan`, ramped linearly from 0 over the first `loss.tactile_gan_ramp` of the schedule."""
@@ -105,9 +120,7 @@ class Ours(Method):
             if lc.visual_perceptual:
                 out["v_perc"] = lc.visual_perceptual * self.perceptual(visual_fake, batch.visual)
         if self.visual_gan:
-            DI = self.nets["DI"]
-            real_o = DI(torch.cat([batch.sketch, batch.visual], 1))
-            fake_o = DI(torch.cat([batch.sketch, visual_fake], 1))
+            real_o, fake_o = self.visual_d(batch, batch.visual, visual_fake)
             out["v_gan"] = lc.visual_gan * g_loss(fake_o)
             if lc.feature_matching:
                 out["v_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
@@ -120,6 +133,8 @@ class Ours(Method):
             if lc.tactile_perceptual:
                 out["t_perc"] = lc.tactile_perceptual * per_channel(self.perceptual, tp * batch.contact,
                                                                      gt * batch.contact)
+        if self.texture is not None:
+            out["t_tex"] = lc.tactile_texture * self.texture(tp, gt, batch.contact)
         if self.tactile_gan:
             real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake))
             gan = g_loss(fake_o)
@@ -132,13 +147,15 @@ class Ours(Method):
 
     def step(self, batch: Batch, step: int) -> dict[str, float]:
         logs: dict[str, float] = {}
+        # one augmentation stream per step, so a resumed run augments exactly as an uninterrupted one
+        self.aug_visual.reseed(self.cfg.train.seed * 1_000_003 + 2 * step)
+        self.aug_tactile.reseed(self.cfg.train.seed * 1_000_003 + 2 * step + 1)
         visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
         # Discriminators first, on detached fakes.
         if self.visual_gan:
             DI = self.nets["DI"]
             self.opts["DI"].zero_grad(set_to_none=True)
-            loss = d_loss(DI(torch.cat([batch.sketch, batch.visual], 1)),
-                          DI(torch.cat([batch.sketch, visual_fake.detach()], 1)))
+            loss = d_loss(*self.visual_d(batch, batch.visual, visual_fake.detach()))
             loss.backward()
             self._reduce(DI)
             self.opts["DI"].step()

@@ -211,6 +211,11 @@ def _manifest_doc():
     (lambda d: d["files"].update({"x.bin": "nothex"}), "SHA-256"),
     (lambda d: d["files"].update({"../x": "a" * 64}), "invalid path"),
     (lambda d: d["metrics"].update(psnr="high"), "must be a number"),
+    (lambda d: d["haptics"].update(normalization="minmax"), "normalization must be one of"),
+    (lambda d: d["haptics"].update(normalization="perceptual"), "constants are missing"),
+    (lambda d: d["haptics"].update(constants={"gz_low": 1.0}), "takes no constants"),
+    (lambda d: d["haptics"].update(constants={"gz_low": "low"}), "must be a number"),
+    (lambda d: d["haptics"].update(pixel_pitch_mm=0), "must be positive"),
 ])
 def test_manifest_schema_errors(mutate, match):
     doc = _manifest_doc()
@@ -338,3 +343,25 @@ def test_writer_is_deterministic(tmp_path):
     b, _ = make_bundle(tmp_path, name="b.vtb")
     # Same sources and key give byte-identical archives (fixed mtimes, sorted members, deterministic Ed25519).
     assert a.read_bytes() == b.read_bytes()
+
+
+def test_old_bundles_load_with_their_mapping_and_keep_their_bytes():
+    """A manifest written before mappings had constants: same mapping, no constants, and the canonical dump (what
+    is hashed and signed) is byte-identical to the old one."""
+    doc = _manifest_doc()
+    assert "constants" not in doc["haptics"]
+    m = parse_manifest(yaml.safe_dump(doc, sort_keys=False).encode())
+    assert m.friction_normalization == "calibrated" and m.friction_constants == {}
+    assert "constants" not in manifest_to_dict(m)["haptics"]
+
+
+def test_perceptual_manifest_round_trips_its_constants():
+    from kiosk.contract.haptics import PERCEPTUAL_DEFAULTS
+
+    consts = {**PERCEPTUAL_DEFAULTS, "gz_low": 0.002, "gz_high": 0.01}
+    m = base_manifest(friction_normalization="perceptual", friction_constants=consts,
+                      files={"graphs/full.onnx": "a" * 64, "graphs/tactile.onnx": "b" * 64,
+                             "graphs/visual.onnx": "c" * 64, "assets/sketch.png": "d" * 64,
+                             "assets/mask.png": "e" * 64, "assets/visual.png": "f" * 64})
+    back = parse_manifest(dump_manifest(m))
+    assert back == m and back.friction_constants["gz_high"] == 0.01

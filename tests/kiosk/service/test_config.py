@@ -56,6 +56,15 @@ def test_defaults_need_something_to_serve(tmp_path):
     ({"bundles": ["a"], "health": {"stale_after_s": -1}}, "health.stale_after_s"),
     ({"bundles": ["a"], "log_level": "LOUD"}, "log_level"),
     ({"bundles": ["a"], "inference": None, "server": 5}, "server must be a mapping"),
+    ({"bundles": ["a"], "page": {"idle_timeout_s": 0}}, "page.idle_timeout_s must be from 0.5"),
+    ({"bundles": ["a"], "page": {"idle_timeout_s": float("inf")}}, "page.idle_timeout_s must be a finite number"),
+    ({"bundles": ["a"], "page": {"attract_garment_s": 1}}, "page.attract_garment_s"),
+    ({"bundles": ["a"], "page": {"tap_max_px": -1}}, "page.tap_max_px"),
+    ({"bundles": ["a"], "page": {"auto_feel": "yes"}}, "page.auto_feel must be true or false"),
+    ({"bundles": ["a"], "page": {"texts": {"titel": "Hi"}}}, "unknown key.*page.texts.*titel"),
+    ({"bundles": ["a"], "page": {"texts": {"title": ""}}}, "page.texts.title must be a non-empty string"),
+    ({"bundles": ["a"], "page": {"texts": {"title": "a\nb"}}}, "page.texts.title must be one line"),
+    ({"bundles": ["a"], "page": {"texts": {"hint_feel": "x" * 201}}}, "page.texts.hint_feel must be one line of at"),
 ])
 def test_bad_configs_name_the_key(tmp_path, doc, message):
     with pytest.raises(ConfigError, match=message) as info:
@@ -84,6 +93,17 @@ def test_unreadable_and_malformed_files(tmp_path):
         load_config(p)
 
 
+def test_page_section_defaults_and_overrides(tmp_path):
+    cfg = load_config(_write(tmp_path, {"bundles": ["a"]}))
+    assert cfg.page.idle_timeout_s == 90.0 and cfg.page.auto_feel and cfg.page.texts.draw == "Draw"
+    cfg = load_config(_write(tmp_path, {"bundles": ["a"], "page": {"idle_timeout_s": 30, "texts": {
+        "feel": "Fühlen", "title": "Zeichnen. Sehen. Fühlen."}}}))
+    assert cfg.page.idle_timeout_s == 30.0 and cfg.page.texts.feel == "Fühlen"
+    assert cfg.page.texts.draw == "Draw"  # the texts not given keep their defaults
+    doc = cfg.page.to_json()
+    assert doc["texts"]["title"] == "Zeichnen. Sehen. Fühlen." and doc["idle_timeout_s"] == 30.0
+
+
 def test_command_line_overrides_merge_by_section(tmp_path):
     path = _write(tmp_path, {"bundles": ["a"], "server": {"port": 9000}, "device": {"type": "hid", "vid": 4617}})
     cfg = load_config(path, {"server": {"host": "::1"}, "device": {"type": "emulated"}, "bundles": ["/b.vtb"]})
@@ -96,7 +116,8 @@ def test_command_line_overrides_merge_by_section(tmp_path):
 # -- property: whatever the YAML says, the parser answers with a config or a ConfigError ------------------------------
 scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
                     st.text(max_size=12))
-keys = st.sampled_from(["server", "store", "bundles", "device", "inference", "health", "control", "debug",
+keys = st.sampled_from(["server", "store", "bundles", "device", "inference", "health", "control", "debug", "page",
+                        "texts", "idle_timeout_s", "title",
                         "state_dir", "log_level", "host", "port", "threads", "type", "root", "precisions",
                         "max_resolution", "allow_non_loopback", "emulator", "faults", "x"])
 documents = st.recursive(scalars, lambda children: st.one_of(st.lists(children, max_size=4),
@@ -116,9 +137,10 @@ def test_any_document_gives_a_config_or_a_clear_error(doc):
 
 
 @settings(max_examples=200, deadline=None)
-@given(section=st.sampled_from(["server", "inference", "health", "store", "debug"]),
+@given(section=st.sampled_from(["server", "inference", "health", "store", "debug", "page"]),
        key=st.sampled_from(["port", "threads", "host", "stale_after_s", "allow_unsigned", "max_resolution",
-                            "fault_injection", "latency_budget_ms", "cache_mb", "margin_px"]),
+                            "fault_injection", "latency_budget_ms", "cache_mb", "margin_px", "idle_timeout_s",
+                            "tap_max_px", "texts", "auto_feel"]),
        value=scalars)
 def test_mutated_valid_config_gives_a_config_or_a_clear_error(section, key, value):
     doc = {"bundles": ["/a.vtb"], section: {key: value}}
@@ -126,3 +148,29 @@ def test_mutated_valid_config_gives_a_config_or_a_clear_error(section, key, valu
         config_from_mapping(doc)
     except ConfigError as exc:
         assert str(exc)
+
+
+def test_panel_defaults_to_the_known_tanvastouch_panel():
+    cfg = config_from_mapping({"bundles": ["g.vtb"]})
+    assert cfg.panel.model == "tanvastouch-10.1"
+    assert cfg.panel.pitch_mm == pytest.approx(0.1696, abs=5e-4)  # 10.1-inch 16:10 diagonal over 1280 px
+    assert "not read from a vendor datasheet" in cfg.panel.describe()["source"]
+
+
+def test_panel_stated_in_mm_overrides_the_table():
+    cfg = config_from_mapping({"bundles": ["g.vtb"], "panel": {"model": None, "width_mm": 320.0,
+                                                               "height_mm": 200.0, "width_px": 1280,
+                                                               "height_px": 800}})
+    assert cfg.panel.pitch_mm == pytest.approx(0.25) and cfg.panel.describe()["source"] == "kiosk config"
+
+
+@pytest.mark.parametrize("panel, message", [
+    ({"model": "tanvas-99"}, "not a known panel"),
+    ({"model": None, "width_mm": 300.0}, "panel.height_mm is needed"),
+    ({"width_mm": 300.0}, "not square"),
+    ({"model": None, "width_mm": 2.0, "height_mm": 1.0, "width_px": 100, "height_px": 50}, "from 10 to 5000"),
+    ({"width_mm": "wide"}, "panel.width_mm must be a finite number"),
+])
+def test_bad_panels_name_the_key(panel, message):
+    with pytest.raises(ConfigError, match=message):
+        config_from_mapping({"bundles": ["g.vtb"], "panel": panel})

@@ -49,7 +49,9 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     # The stroke end is answered quickly at the preview resolution, then refined at full resolution.
     status, meta, visuals = render(daemon)
     assert status == 200 and meta["mode"] == "final" and meta["refine"] and meta["plan"]["quick"]
-    assert visuals["main"].shape == (256, 256, 4) and meta["plan"]["panels"][0]["refine_grid"] == [512, 512]
+    # Physical scale: the 532x432 px region at 0.170 mm/px (default panel) over the bundle's 0.3 mm/px is 301x245
+    # model pixels, rounded up to the graph's 512x256; the quick answer fits 256x256 at a lower scale.
+    assert visuals["main"].shape == (256, 256, 4) and meta["plan"]["panels"][0]["refine_grid"] == [512, 256]
     assert daemon.wait_commit(meta["device_frame"], 5.0).status == "committed"
     status, meta, visuals = render(daemon, mode="refine")
     assert status == 200 and not meta["refine"]
@@ -57,7 +59,7 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     assert p["status"] == "ok" and meta["plan"]["panels"][0]["graph"] == "full"
     x, y, w, h = p["visual"]["rect"]
     assert p["friction"]["rect"] == [x, y, w, h]  # fully on screen: the same rectangle
-    assert visuals["main"].shape == (512, 512, 4)
+    assert visuals["main"].shape == (256, 512, 4)
     commit = daemon.wait_commit(meta["device_frame"], 5.0)
     assert commit.status == "committed" and commit.at >= meta["received_at"]
     frame = device_frame(daemon)
@@ -75,7 +77,7 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     assert not outside.any()  # nothing anywhere else
     # The visual's alpha is the object mask: opaque inside the outline, transparent outside.
     alpha = visuals["main"][..., 3]
-    assert alpha[256, 256] == 255 and alpha[2, 2] == 0
+    assert alpha[128, 256] == 255 and alpha[2, 2] == 0
 
 
 def test_without_refinement_a_stroke_end_is_answered_at_full_resolution(bundle):
@@ -83,7 +85,7 @@ def test_without_refinement_a_stroke_end_is_answered_at_full_resolution(bundle):
     d = start_daemon([path], trusted, inference={"refine": False})
     try:
         status, meta, visuals = render(d)
-        assert not meta["refine"] and not meta["plan"]["quick"] and visuals["main"].shape == (512, 512, 4)
+        assert not meta["refine"] and not meta["plan"]["quick"] and visuals["main"].shape == (256, 512, 4)
     finally:
         d.stop()
 

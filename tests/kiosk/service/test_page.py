@@ -1,6 +1,7 @@
 """The kiosk page in headless Chromium (Playwright) against a real daemon serving a bundle made by our own trainer
 and exporter, with the emulated haptic device: strokes drawn with the mouse produce a synthesized garment where
-they were drawn, and the device commits the matching friction frame exactly under it."""
+they were drawn, and the device commits the matching friction frame exactly under it. The touch-screen behaviour
+(Draw/Feel modes, second fingers, taps, the store loop) is in test_page_touch.py."""
 from __future__ import annotations
 
 import shutil
@@ -48,11 +49,19 @@ def page(browser, daemon):
     pg = ctx.new_page()
     errors = []
     pg.on("pageerror", lambda e: errors.append(str(e)))
-    pg.goto(daemon.server.url)
-    pg.evaluate("window.vtkiosk.ready")
+    open_page(pg, daemon.server.url)
     yield pg
     ctx.close()
     assert not errors, errors
+
+
+def open_page(page, url: str) -> None:
+    """Load the page and wake it from its attract screen with a touch, as a shopper does."""
+    page.goto(url)
+    page.evaluate("window.vtkiosk.ready")
+    assert page.is_visible("#attract")
+    page.mouse.click(640, 400)
+    page.wait_for_function("!window.vtkiosk.state.attract")
 
 
 def draw(page, points, steps=12):
@@ -91,6 +100,11 @@ def test_drawing_shows_the_garment_and_the_device_feels_it_underneath(page, daem
     draw(page, OUTLINE_B)
     shown = wait_final(page, n)
     assert shown["status"] == "ok" and shown["mode"] == "refine"
+    # The outline closed into a garment: the page switched to Feel mode by itself and says so.
+    texts = page.evaluate("window.vtkiosk.config().texts")
+    assert page.evaluate("window.vtkiosk.state.mode") == "feel"
+    assert page.inner_text("#hint") == texts["hint_feel"]
+    assert page.inner_text("#fabric-name") == "Demo denim shorts" and page.is_visible("#fabric")
     assert page.evaluate("window.vtkiosk.stats.previews.length") > 0  # live preview while drawing
     assert page.evaluate("window.vtkiosk.stats.refines.length") == 1  # quick answer, then full resolution
     meta = page.evaluate("window.vtkiosk.lastMeta")
@@ -124,6 +138,9 @@ def test_undo_clear_reference_and_garment_picker(page, daemon):
     draw(page, OUTLINE_A[:2] + [(900, 640), (380, 640), (380, 222)])
     first = wait_final(page, n)
     assert first["status"] == "ok", first
+    assert page.evaluate("window.vtkiosk.state.mode") == "feel"  # a mouse follows the toggle like a finger
+    page.click("#mode-draw")
+    assert page.inner_text("#hint") == page.evaluate("window.vtkiosk.config().texts.hint_draw")
     n = finals(page)
     draw(page, DETAIL)
     edited = wait_final(page, n)
@@ -149,6 +166,7 @@ def test_undo_clear_reference_and_garment_picker(page, daemon):
     n = finals(page)
     page.click("#garments button[data-id='denim-shorts']")
     wait_final(page, n)
+    page.click("#mode-draw")  # picking on an empty canvas laid the garment's outline and switched to Feel
     n = finals(page)
     page.click("#reference")
     ref = wait_final(page, n)

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from kiosk.study.log import (DuplicateResponse, StudyLog, StudyLogError, encode_record, load_state, parse_log_bytes,
                              read_log)
 
+from ..full_disk import small_disk
 from .helpers import run_session, study_config
 
 
@@ -155,3 +156,40 @@ def test_writer_recovers_from_a_torn_tail(tmp_path_factory, written, cut, garbag
         assert len(aside) == 1 and aside[0].read_bytes() == torn[data[:cut].rfind(b"\n") + 1:]
     else:
         assert not aside
+
+
+def test_a_full_disk_leaves_the_log_as_it_was_and_writing_resumes_when_space_returns(tmp_path):
+    """Fill a real file system under the log, keep appending, free it, append again: every acknowledged record
+    reads back, no failed append leaves a byte behind, and the first record after the outage is not glued to one."""
+    with small_disk(tmp_path / "disk", size_kib=256) as disk:
+        cfg = study_config(disk.folder)
+        log = StudyLog.open(cfg.log, cfg.id)
+        acked, failures = [], 0
+        pad = "x" * 300   # records cross page boundaries, so a write can fail half-way
+
+        def append(n):
+            nonlocal failures
+            before = cfg.log.read_bytes()
+            try:
+                acked.append(log.append("event", kind="tap", n=n, pad=pad)["seq"])
+            except (OSError, StudyLogError) as exc:
+                failures += 1
+                assert cfg.log.read_bytes() == before, "a failed append changed the log"
+                assert "\n" not in str(exc) and "study log" in str(exc)
+                assert log.write_error is not None
+
+        for n in range(5):
+            append(n)
+        disk.fill(slack=100)
+        for n in range(5, 40):
+            append(n)
+        assert failures >= 20, "the disk never filled"
+        disk.free()
+        for n in range(40, 45):
+            append(n)
+        assert log.write_error is None
+        log.close()
+        read = read_log(cfg.log)
+        assert not read.problems and not read.torn_tail
+        assert [r["seq"] for r in read.records[1:]] == acked == list(range(2, len(acked) + 2))
+        assert [r["n"] for r in read.records[-5:]] == list(range(40, 45))
