@@ -292,7 +292,7 @@ def _value(field: dataclasses.Field, key: str, value: Any, hint: Any, ctx: _Ctx)
     parse = field.metadata.get("parse")
     if parse is None:
         if value == "" and isinstance(value, str) and _base(hint) is str and not field.metadata.get("empty_ok"):
-            raise ctx.error(f"{key} must be non-empty text")
+            raise ctx.error(f"{key} must be a non-empty string")
         return _coerce(key, value, hint, ctx)
     if value is None and _optional(hint):
         return None
@@ -342,7 +342,7 @@ def _coerce(key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
         out = {}
         for k, v in value.items():
             if not isinstance(k, str):
-                raise err(f"{key} keys must be text, got {_describe(k)}")
+                raise err(f"{key} keys must be strings, got {_describe(k)}")
             out[k] = v if vt is Any else _coerce(f"{key}.{k}", v, vt, ctx)
         return out
     if hint is bool:
@@ -362,7 +362,7 @@ def _coerce(key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
         return float(number)
     if hint is str:
         if not isinstance(value, str):
-            raise err(f"{key} must be text, got {_describe(value)}")
+            raise err(f"{key} must be a string, got {_describe(value)}")
         return value
     if hint is Path:
         if not isinstance(value, (str, Path)) or not str(value) or "\0" in str(value):
