@@ -30,7 +30,7 @@ ALLOWED: dict[str, set[str]] = {
 }
 # A room's command line is its front door and may also drive the rooms its commands talk to.
 FRONT_DOORS: dict[str, set[str]] = {
-    "kiosk/bundle/cli.py": {"kiosk.service.config", "kiosk.ops.control"},
+    "kiosk/bundle/cli.py": {"kiosk.service.config", "kiosk.ops.control", "kiosk.ops.logsetup"},
 }
 
 
