@@ -14,7 +14,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 import exporter
 from exporter.accuracy import compare_sessions
@@ -147,7 +146,7 @@ def _recipe(cfg: ExportConfig) -> dict[str, str]:
 def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None, progress=print) -> ExportReport:
     """Export, measure, refuse or write. Raises ExportError/CheckpointError with an operator-facing message."""
     from trainer.checkpoint import load_generator
-    from trainer.config import config_from_dict
+    from trainer.config import read_run_config
 
     run_dir = Path(run_dir)
     if cfg.precision not in ("int8", "fp16", "fp32"):
@@ -160,7 +159,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     if info.get("generator_class", "TwoBranchUNet") != "TwoBranchUNet":
         raise ExportError(f"run {run_dir} ({info.get('method')}) uses {info.get('generator_class')}, which has no "
                           "separate visual/tactile branches; only two-branch runs export to kiosk bundles")
-    run_cfg = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    run_cfg = read_run_config(run_dir)
     garment_dir = Path(run_cfg.garment)
     if not garment_dir.is_dir():
         raise ExportError(f"the run's garment folder {garment_dir} is not here; the exporter needs its sketch, "

@@ -89,7 +89,7 @@ class LossConfig:
     tactile_gan_ramp: float = 0.0
     # DiffAugment on the discriminators' inputs (trainer/recipe/diffaug.py): comma-separated ops from color,
     # translation, cutout (the authors' `--use_diffaug` policy is all three); "" = off.
-    diffaug: str = ""
+    diffaug: str = field(default="", metadata={"empty_ok": True})
     # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
     tactile_texture: float = 0.0
 
@@ -139,7 +139,7 @@ class RunConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     pretrained: PretrainedConfig = field(default_factory=PretrainedConfig)
-    garment: str = ""                # garment folder (absolute path), filled by the CLI
+    garment: str = field(default="", metadata={"empty_ok": True})  # garment folder (absolute), filled by the CLI
 
     def to_dict(self) -> dict:
         return loader.to_mapping(self)
@@ -171,6 +171,13 @@ def load_config(preset: str | Path = "paper", *, overrides: list[str] | None = N
 def config_from_dict(data: dict) -> RunConfig:
     """A run's saved config (`RUN/config.yaml`, a checkpoint's `config`) read back."""
     return loader.build(RunConfig, data, error=ConfigError)
+
+
+def read_run_config(run_dir: str | Path) -> RunConfig:
+    """The config a run saved as `RUN/config.yaml`; errors name the file."""
+    path = Path(run_dir) / "config.yaml"
+    return loader.build(RunConfig, loader.load_yaml(path, error=ConfigError, what="run config"), error=ConfigError,
+                        where=str(path))
 
 
 def validate(cfg: RunConfig) -> None:

@@ -33,7 +33,8 @@ SIZES = "256,512"
 CODE = ("trainer", "exporter/__init__.py", "exporter/cli.py", "exporter/export.py", "exporter/graphs.py",
         "exporter/rewrite.py", "exporter/quantize.py", "exporter/calibration.py", "exporter/accuracy.py",
         "exporter/bundle_writer.py", "exporter/keys.py", "kiosk/contract/sketch.py", "kiosk/contract/haptics.py", "kiosk/bundle/manifest.py",
-        "kiosk/bundle/archive.py", "kiosk/bundle/signature.py", "kiosk/bundle/probe.py", "kiosk/contract/validate.py")
+        "kiosk/bundle/archive.py", "kiosk/bundle/signature.py", "kiosk/bundle/probe.py", "kiosk/contract/validate.py",
+        "kiosk/contract/graph.py", "kiosk/config/loader.py")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:

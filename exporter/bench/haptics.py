@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from kiosk.bench.felt import contrast_steps, dominant_period_px, felt_scale
-from kiosk.contract.errors import KioskError
+from exporter.errors import ExportError
 from kiosk.contract.haptics import calibrate_scale, friction_map, jnd_steps, perceptual_constants
 from kiosk.inference.render import compose, friction_texture
 from kiosk.inference.scene import Panel, Planner, Scene, SketchInput
@@ -59,7 +59,7 @@ TARGET_STEPS = 4.0
 MODES = {"today": (False, "calibrated"), "paper": (False, "quantile"), "new": (True, "perceptual")}
 
 
-class HapticsBenchError(KioskError):
+class HapticsBenchError(ExportError):
     """A bench run that cannot be measured as asked; the message says why."""
 
 

@@ -227,10 +227,9 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
         sizes = args.sizes or sorted({s for k in graphs for s in declared[k]}, key=lambda s: s[0] * s[1])
         garment_dir = args.garment
         if garment_dir is None and src.run_dir is not None:
-            import yaml
-            cfg_path = src.run_dir / "config.yaml"
-            if cfg_path.is_file():
-                garment_dir = Path(str((yaml.safe_load(cfg_path.read_text()) or {}).get("garment", "")) or ".")
+            from trainer.config import read_run_config
+            if (src.run_dir / "config.yaml").is_file():
+                garment_dir = Path(read_run_config(src.run_dir).garment or ".")
         truth_on = garment_dir is not None and (Path(garment_dir) / "fullT").is_dir() and torch_available()
         if not truth_on:
             src.notes.append("no full-field ground truth (needs a synthetic garment folder with fullT/ and the "

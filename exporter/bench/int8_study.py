@@ -63,8 +63,6 @@ def _timings(paths: dict[str, Path], size: int, rounds: int, threads: int) -> di
 
 def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> int:
     args = build_parser(prog).parse_args(argv)
-    import yaml
-
     from exporter.accuracy import compare_outputs, reference_outputs
     from exporter.calibration import calibration_set, held_out_set
     from exporter.export import _reference_assets, rewrites_conv_transpose
@@ -72,10 +70,11 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
     from exporter.quantize import quantize_int8
     from kiosk.contract.graph import GRAPH_OUTPUTS
     from trainer.checkpoint import load_generator
+    from trainer.config import read_run_config
 
     generator, info = load_generator(args.run, args.which)
     scale = float(info["friction_scale"])
-    garment = Path(yaml.safe_load((args.run / "config.yaml").read_text())["garment"])
+    garment = Path(read_run_config(args.run).garment)
     outputs = GRAPH_OUTPUTS[args.graph]
     rows = []
     with tempfile.TemporaryDirectory(prefix="vtkiosk-int8-study-") as tmp_s:

@@ -10,6 +10,10 @@ Field metadata tunes one field:
 - `parse`: a callable `(value) -> value` run instead of the type's coercion (e.g. hex strings for USB ids); it
   raises ValueError with the rest of the sentence ("must be ...").
 - `internal`: True for a field the program fills (a file's digest, its folder): a file naming it is refused.
+- `empty_ok`: True for a text field that may be empty (text is non-empty otherwise: an empty value is a mistake).
+
+YAML comes from outside (an operator's file, a study from a lab): it is read with bounded nesting, so `[[[[...` or
+an integer of thousands of digits is a one-line error (`YAMLLimitError`), not a RecursionError.
 
 Values: bool is only true/false (never 1 or "yes"); int is never a bool; float takes ints and numeric strings
 (PyYAML reads `1e-3` as a string) but never NaN or infinity; Path expands `~` and, given `base_dir`, is resolved
@@ -31,15 +35,21 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 MAX_CONFIG_BYTES = 1 << 20
+MAX_DEPTH = 32   # configs nest 3 or 4 levels deep
 _NUMBER_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 _NONE_TEXT = ("", "null", "none", "~")
 
 
 def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config") -> dict[str, Any]:
     """The mapping in a YAML file (an empty file is an empty mapping); errors name the file."""
-    import yaml
+    return parse_yaml(read_bytes(path, error=error, what=what), path, error=error)
 
+
+def read_bytes(path: str | Path, *, error: type[Exception], what: str = "config") -> bytes:
+    """A config file's bytes (for a caller that also records their digest); errors name the file."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -47,12 +57,17 @@ def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config")
         raise error(f"cannot read {what} {path}: {exc.strerror or exc}") from None
     if len(data) > MAX_CONFIG_BYTES:
         raise error(f"{path}: {len(data)} bytes is too large for a {what}")
+    return data
+
+
+def parse_yaml(data: bytes, path: str | Path, *, error: type[Exception]) -> dict[str, Any]:
+    """The mapping in a config file's bytes (`path` names it in errors)."""
     try:
-        doc = yaml.safe_load(data.decode("utf-8"))
+        doc = safe_load(data.decode("utf-8"))
     except UnicodeDecodeError:
         raise error(f"{path}: not UTF-8 text") from None
     except yaml.YAMLError as exc:
-        raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        raise error(f"{path}: not valid YAML ({one_line(str(exc))})") from None
     if doc is None:
         return {}
     if not isinstance(doc, dict):
@@ -61,10 +76,11 @@ def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config")
 
 
 def build(cls: type, data: Any, *, error: type[Exception], base_dir: Path | None = None,
-          where: str | None = None) -> Any:
-    """An instance of dataclass `cls` from a parsed document; `where` (a file) is put in front of any error."""
+          where: str | None = None, internal: Mapping[str, Any] | None = None) -> Any:
+    """An instance of dataclass `cls` from a parsed document; `where` (a file) is put in front of any error.
+    `internal` gives the values of the fields the program fills (metadata `internal`), as they are."""
     try:
-        return _build(cls, {} if data is None else data, "", _Ctx(error, base_dir))
+        return _build(cls, {} if data is None else data, "", _Ctx(error, base_dir), internal or {})
     except error as exc:
         if where is None:
             raise
@@ -74,11 +90,62 @@ def build(cls: type, data: Any, *, error: type[Exception], base_dir: Path | None
 def load(cls: type, path: str | Path | None, *, error: type[Exception], overrides: Mapping | None = None,
          what: str = "config") -> Any:
     """Read a YAML file (or none: defaults), merge `overrides` in by section, build `cls`. Relative paths in the
-    file start at its folder."""
+    file start at its folder. A section an override touches must be valid in the file too: an option that hides a
+    bad value today leaves the program unable to start the day it runs without that option."""
     doc = load_yaml(path, error=error, what=what) if path is not None else {}
-    doc = merge(doc, overrides or {})
-    return build(cls, doc, error=error, base_dir=None if path is None else Path(path).parent,
-                 where=str(path) if path is not None else "the command line")
+    where = str(path) if path is not None else "the command line"
+    base_dir = None if path is None else Path(path).parent
+    touched = [k for k in (overrides or {}) if isinstance(doc.get(k), Mapping)]
+    try:
+        check_sections(cls, doc, touched, error=error, base_dir=base_dir)
+    except error as exc:
+        raise error(f"{where}: {exc}") from None
+    return build(cls, merge(doc, overrides or {}), error=error, base_dir=base_dir, where=where)
+
+
+def check_sections(cls: type, doc: Mapping, names: Iterable[str], *, error: type[Exception],
+                   base_dir: Path | None = None) -> None:
+    """Build the named sections (dataclass fields of `cls`) of `doc` on their own; errors name the section's key."""
+    hints, fields = typing.get_type_hints(cls), {f.name: f for f in dataclasses.fields(cls)}
+    for name in names:
+        if name in fields and dataclasses.is_dataclass(hints[name]):
+            _value(fields[name], name, doc[name], hints[name], _Ctx(error, base_dir))
+
+
+class YAMLLimitError(yaml.YAMLError):
+    """A document that is well-formed YAML but no sane config: nested too deeply, or a value too large."""
+
+
+class BoundedLoader(yaml.SafeLoader):
+    """SafeLoader that refuses documents nested deeper than `max_depth` collections (PyYAML composes nested
+    collections recursively, so deep nesting would otherwise end in a RecursionError)."""
+
+    max_depth = MAX_DEPTH
+
+    def compose_node(self, parent, index):  # type: ignore[override]
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > self.max_depth:
+                line = self.peek_event().start_mark.line + 1
+                raise YAMLLimitError(f"nested deeper than {self.max_depth} levels (line {line})")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def safe_load(text: str | bytes) -> Any:
+    """`yaml.safe_load` with bounded nesting; every failure is a `yaml.YAMLError` with a one-line message."""
+    try:
+        return yaml.load(text, Loader=BoundedLoader)  # noqa: S506 - BoundedLoader is a SafeLoader
+    except RecursionError:
+        raise YAMLLimitError("nested too deeply") from None
+    except ValueError as exc:   # int() of more than 4300 digits, and the like
+        raise YAMLLimitError(f"holds a value that cannot be read ({one_line(str(exc), 100)})") from None
+
+
+def one_line(text: str, limit: int = 200) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def merge(doc: Mapping, overrides: Mapping) -> dict:
@@ -94,8 +161,6 @@ def parse_overrides(cls: type, items: Iterable[str], *, error: type[Exception]) 
 
     The text after `=` is read as the field's type: verbatim for strings and paths, YAML for the rest, and a
     comma-separated list for tuples (`optim.betas=0.5,0.9`)."""
-    import yaml
-
     out: dict = {}
     for item in items:
         if "=" not in item:
@@ -123,11 +188,14 @@ def parse_overrides(cls: type, items: Iterable[str], *, error: type[Exception]) 
             value = text
         else:
             try:
-                value = yaml.safe_load(text)
+                value = safe_load(text)
             except yaml.YAMLError:
                 value = text
             if typing.get_origin(_base(hint)) is tuple and isinstance(value, str):
-                value = [yaml.safe_load(t) for t in value.split(",")]
+                try:
+                    value = [safe_load(t) for t in value.split(",")]
+                except yaml.YAMLError:
+                    pass
         try:
             value = _value(field, dotted, value, hint, _Ctx(error, None))
         except error as exc:
@@ -190,7 +258,7 @@ def _base(hint: Any) -> Any:
     return hint
 
 
-def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
+def _build(cls: type, data: Any, prefix: str, ctx: _Ctx, internal: Mapping[str, Any] | None = None) -> Any:
     where = prefix.rstrip(".")
     if not isinstance(data, Mapping):
         raise ctx.error(f"{where or 'the top level'} must be a mapping{' of sections' if not where else ''}, "
@@ -207,6 +275,7 @@ def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
         raise ctx.error(f"missing key(s){f' in {where}' if where else ''}: {', '.join(sorted(missing))}")
     hints = typing.get_type_hints(cls)
     kwargs = {name: _value(fields[name], f"{prefix}{name}", value, hints[name], ctx) for name, value in data.items()}
+    kwargs.update(internal or {})
     try:
         return cls(**kwargs)
     except ctx.error:
@@ -222,6 +291,8 @@ def _build(cls: type, data: Any, prefix: str, ctx: _Ctx) -> Any:
 def _value(field: dataclasses.Field, key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
     parse = field.metadata.get("parse")
     if parse is None:
+        if value == "" and isinstance(value, str) and _base(hint) is str and not field.metadata.get("empty_ok"):
+            raise ctx.error(f"{key} must be a non-empty string")
         return _coerce(key, value, hint, ctx)
     if value is None and _optional(hint):
         return None
@@ -271,7 +342,7 @@ def _coerce(key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
         out = {}
         for k, v in value.items():
             if not isinstance(k, str):
-                raise err(f"{key} keys must be text, got {_describe(k)}")
+                raise err(f"{key} keys must be strings, got {_describe(k)}")
             out[k] = v if vt is Any else _coerce(f"{key}.{k}", v, vt, ctx)
         return out
     if hint is bool:
@@ -291,7 +362,7 @@ def _coerce(key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
         return float(number)
     if hint is str:
         if not isinstance(value, str):
-            raise err(f"{key} must be text, got {_describe(value)}")
+            raise err(f"{key} must be a string, got {_describe(value)}")
         return value
     if hint is Path:
         if not isinstance(value, (str, Path)) or not str(value) or "\0" in str(value):

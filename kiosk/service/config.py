@@ -1,8 +1,9 @@
 """The kiosk daemon's configuration: typed dataclasses loaded from one YAML file (`vtkiosk serve --config`).
 
-Every section is optional and has safe defaults (loopback only, signed bundles only, the emulated device). Unknown
-keys, wrong types and out-of-range values are `ConfigError`s that name the key, so an operator sees
-`kiosk.yaml: inference.threads must be an integer from 1 to 64; got 'two'` instead of a traceback at 3 a.m.
+Every section is optional and has safe defaults (loopback only, signed bundles only, the emulated device). The
+project's one loader (`kiosk.config.loader`) reads the file; unknown keys, wrong types and out-of-range values are
+`ConfigError`s that name the file and key, so an operator sees
+`kiosk.yaml: inference.threads must be an integer from 1 to 64` instead of a traceback at 3 a.m.
 The `device` section is the bridge's own `firmware_bridge.config.BridgeConfig` (transport plugin chosen by `type`).
 See `configs/kiosk.example.yaml` for every key with a comment.
 """
@@ -11,28 +12,22 @@ from __future__ import annotations
 import dataclasses
 import ipaddress
 import re
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_type_hints
-
-import yaml
+from typing import Any
 
 from firmware_bridge.config import BridgeConfig
-from firmware_bridge.errors import ConfigError as BridgeConfigError
-from kiosk.contract import yamlload
-from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import PRECISIONS
+from kiosk.config import loader
+from kiosk.contract.errors import KioskError
+from kiosk.contract.graph import GRID_MULTIPLE
 from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
 from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
 
-MAX_CONFIG_BYTES = 1 << 20
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
 _LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
 _NAME_RE = re.compile(rf"\A(?=.{{1,253}}\Z){_LABEL}(?:\.{_LABEL})*\.?\Z")
-SIZE_MULTIPLE = 256  # exported graphs take H and W in multiples of 256 (eight stride-2 levels)
 
 
 class ConfigError(KioskError):
@@ -103,8 +98,8 @@ class InferenceConfig:
         _check(self.latency_budget_ms > 0, "inference.latency_budget_ms must be > 0")
         for name in ("max_resolution", "preview_max_resolution"):
             v = getattr(self, name)
-            _check(v >= SIZE_MULTIPLE and v % SIZE_MULTIPLE == 0 and v <= 4096,
-                   f"inference.{name} must be a multiple of {SIZE_MULTIPLE} from 256 to 4096")
+            _check(v >= GRID_MULTIPLE and v % GRID_MULTIPLE == 0 and v <= 4096,
+                   f"inference.{name} must be a multiple of {GRID_MULTIPLE} from {GRID_MULTIPLE} to 4096")
         _check(self.preview_max_resolution <= self.max_resolution,
                "inference.preview_max_resolution must not exceed inference.max_resolution")
         _check(0 <= self.margin_px <= 512, "inference.margin_px must be from 0 to 512")
@@ -334,153 +329,12 @@ def _check(cond: bool, msg: str) -> None:
         raise ConfigError(msg)
 
 
-def _type_name(hint: Any) -> str:
-    return {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path"}.get(
-        hint, getattr(hint, "__name__", str(hint)))
-
-
-def _coerce(key: str, value: Any, hint: Any) -> Any:
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(hint) if a is not type(None)]
-        if value is None:
-            return None
-        return _coerce(key, value, args[0])
-    if value is None:
-        raise ConfigError(f"{key} must not be empty")
-    if origin is tuple:
-        item = typing.get_args(hint)[0]
-        if not isinstance(value, list):
-            raise ConfigError(f"{key} must be a list; got {type(value).__name__} {value!r}")
-        return tuple(_coerce(f"{key}[{i}]", v, item) for i, v in enumerate(value))
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key} must be true or false; got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key} must be an integer; got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value \
-                or value in (float("inf"), float("-inf")):
-            raise ConfigError(f"{key} must be a finite number; got {value!r}")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str) or not value:
-            raise ConfigError(f"{key} must be a non-empty string; got {value!r}")
-        return value
-    if hint is Path:
-        if not isinstance(value, str) or not value or "\0" in value:
-            raise ConfigError(f"{key} must be a path; got {value!r}")
-        return Path(value)
-    raise ConfigError(f"{key}: unsupported setting type {_type_name(hint)}")  # a bug in this module, not the file
-
-
-def _build(cls: type, data: Any, prefix: str) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{prefix.rstrip('.') or 'the config'} must be a mapping; got {type(data).__name__}")
-    hints = get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(str(k) for k in data if k not in names)
-    if unknown:
-        where = prefix.rstrip(".") or "the top level"
-        raise ConfigError(f"unknown key(s) in {where}: {', '.join(unknown)} (valid: {', '.join(names)})")
-    kwargs: dict[str, Any] = {}
-    for name, value in data.items():
-        hint, key = hints[name], f"{prefix}{name}"
-        if hint is BridgeConfig:
-            if not isinstance(value, dict):
-                raise ConfigError(f"{key} must be a mapping of bridge settings; got {type(value).__name__}")
-            try:
-                kwargs[name] = BridgeConfig.from_mapping(value)
-            except (BridgeConfigError, TypeError, ValueError) as exc:
-                raise ConfigError(f"{key}: {exc}") from None
-        elif dataclasses.is_dataclass(hint):
-            kwargs[name] = _build(hint, {} if value is None else value, key + ".")
-        else:
-            kwargs[name] = _coerce(key, value, hint)
-    try:
-        return cls(**kwargs)
-    except ConfigError as exc:
-        raise ConfigError(str(exc)) from None
-
-
 def config_from_mapping(data: Any, *, base_dir: Path | None = None) -> KioskConfig:
     """Validate a parsed config document. Relative paths are resolved against `base_dir` (the file's folder)."""
-    cfg = _build(KioskConfig, {} if data is None else data, "")
-    if base_dir is None:
-        return cfg
-
-    def rel(p: Path | None) -> Path | None:
-        return None if p is None or p.is_absolute() else base_dir / p
-
-    return dataclasses.replace(
-        cfg,
-        bundles=tuple(rel(p) or p for p in cfg.bundles),
-        store=dataclasses.replace(cfg.store, root=rel(cfg.store.root) or cfg.store.root,
-                                  trusted_keys=rel(cfg.store.trusted_keys) or cfg.store.trusted_keys),
-        control=dataclasses.replace(cfg.control, socket=rel(cfg.control.socket) or cfg.control.socket),
-        fleet=dataclasses.replace(cfg.fleet, root=rel(cfg.fleet.root) or cfg.fleet.root,
-                                  state_dir=rel(cfg.fleet.state_dir) or cfg.fleet.state_dir),
-        state_dir=rel(cfg.state_dir) or cfg.state_dir)
-
-
-def _check_sections(doc: dict, sections: list[str]) -> None:
-    """Validate these sections of a config document on their own (ConfigError naming the key)."""
-    hints = get_type_hints(KioskConfig)
-    for name in sections:
-        hint = hints.get(name)
-        if hint is None:
-            continue
-        if hint is BridgeConfig:
-            try:
-                BridgeConfig.from_mapping(doc[name])
-            except (BridgeConfigError, TypeError, ValueError) as exc:
-                raise ConfigError(f"{name}: {exc}") from None
-        elif dataclasses.is_dataclass(hint):
-            _build(hint, doc[name], f"{name}.")
-
-
-def _merge(doc: dict, overrides: dict) -> dict:
-    out = dict(doc)
-    for k, v in overrides.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
+    return loader.build(KioskConfig, data, error=ConfigError, base_dir=base_dir)
 
 
 def load_config(path: Path | None, overrides: dict | None = None) -> KioskConfig:
     """Read and validate a kiosk YAML file (or none: defaults), with command-line `overrides` merged in by
     section; every failure is a ConfigError naming the file."""
-    doc: Any = {}
-    where = "the command line"
-    if path is not None:
-        path = Path(path)
-        where = str(path)
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read the config ({exc.strerror or exc})") from None
-        if len(data) > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: {len(data)} bytes is too large for a kiosk config")
-        try:
-            doc = yamlload.safe_load(data.decode("utf-8"))
-        except UnicodeDecodeError:
-            raise ConfigError(f"{path}: not UTF-8 text") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
-        if doc is None:
-            doc = {}
-        if not isinstance(doc, dict):
-            raise ConfigError(f"{path}: the config must be a mapping of sections; got {type(doc).__name__}")
-        # Every section an option overrides must be valid in the file too: an option that hides a bad value
-        # today leaves the kiosk unable to start the day it runs without that option.
-        try:
-            _check_sections(doc, [k for k in (overrides or {}) if isinstance(doc.get(k), dict)])
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-    doc = _merge(doc, overrides or {})
-    try:
-        return config_from_mapping(doc, base_dir=path.parent if path is not None else None)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+    return loader.load(KioskConfig, path, error=ConfigError, overrides=overrides, what="kiosk config")

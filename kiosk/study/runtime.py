@@ -18,9 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from kiosk.contract import yamlload
+from kiosk.config import loader
 from kiosk.service.config import KioskConfig, config_from_mapping
 from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
@@ -178,14 +176,7 @@ def _kiosk_doc(config: StudyConfig) -> tuple[dict, Path]:
     if isinstance(config.kiosk, dict):
         return dict(config.kiosk), config.base_dir
     path = Path(config.kiosk)
-    try:
-        doc = yamlload.safe_load(path.read_text())
-    except OSError as exc:
-        raise StudyConfigError(f"cannot read the study's kiosk config {path}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
-    if not isinstance(doc, dict):
-        raise StudyConfigError(f"{path}: the kiosk config must be a mapping")
+    doc = loader.load_yaml(path, error=StudyConfigError, what="the study's kiosk config")
     ctl = doc.get("control")
     if isinstance(ctl, dict) and ctl.get("socket") and not Path(ctl["socket"]).is_absolute():
         doc = {**doc, "control": {**ctl, "socket": str(path.parent / ctl["socket"])}}

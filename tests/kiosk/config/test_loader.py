@@ -91,6 +91,7 @@ def test_a_full_document_builds_typed_frozen_values(tmp_path):
     ({"name": "x", "inner": {"mode": "warp"}}, "inner.mode must be one of fast, slow"),
     ({"name": "x", "inner": 3}, "inner must be a mapping, got int 3"),
     ({"name": "x", "where": 3}, "where must be a path"),
+    ({"name": ""}, "name must be a non-empty string"),
     ({"name": "x", "extra": {"a": "b"}}, "extra.a must be an integer"),
     ({"name": "x", "code": "zz"}, "code invalid literal"),
     ({"name": "x", "other": {"level": 10}}, "other: level must be at most 9"),

@@ -49,7 +49,7 @@ def test_defaults_need_something_to_serve(tmp_path):
     ({"bundles": ["a"], "server": {"port": 70000}}, "server.port"),
     ({"bundles": ["a"], "server": {"allow_non_loopback": "yes"}}, "true or false"),
     ({"bundles": ["a"], "device": {"type": "serial"}}, "device: type must be one of"),
-    ({"bundles": ["a"], "device": {"bogus": 1}}, "device: unknown"),
+    ({"bundles": ["a"], "device": {"bogus": 1}}, r"unknown key\(s\) in device: bogus"),
     ({"bundles": ["a"], "device": []}, "device must be a mapping"),
     ({"bundles": "a.vtb"}, "bundles must be a list"),
     ({"bundles": [3]}, r"bundles\[0\] must be a path"),
