@@ -64,6 +64,9 @@ def _summary(bundle, panel: tuple[float, str] | None = None) -> str:
              + (f"; panel {panel[0]:.4g} mm/px ({panel[1]}): inferred at {panel[0] / m.pixel_pitch_mm:.3f} "
                 f"model px per screen px" if panel else ""),
              f"panel       {m.panel_size[0]}x{m.panel_size[1]}",
+             ("branches    2: visual-only and tactile-only renders run a one-branch graph" if m.branches == 2 else
+              "branches    1: one network computes visual and tactile; a visual-only or tactile-only render runs "
+              "the full graph and costs as much as both"),
              f"signed by   {bundle.key_id or 'NOT CHECKED'}"]
     for kind, g in m.graphs.items():
         sizes = ", ".join(f"{w}x{h}" for w, h in g.sizes)

@@ -222,7 +222,8 @@ class Plan:
 
 def choose_graph(needs: Sequence[str], available: Sequence[str]) -> str:
     """The cheapest graph that computes `needs`: a single-branch graph when one modality is needed (asking the
-    two-output graph for one output would still run both branches), `full` for both, `none` for nothing."""
+    two-output graph for one output would still run both branches), `full` for both or when the bundle has no
+    one-branch graph (a single-branch model: one modality costs as much as both), `none` for nothing."""
     want = set(needs)
     if not want:
         return "none"
@@ -271,14 +272,14 @@ def physical_grid(box: tuple[float, float], target: float, cap: tuple[int, int])
     largest scale whose grid fits (the texture is then felt target/scale times coarser)."""
     bw, bh = max(float(box[0]), 1.0), max(float(box[1]), 1.0)
     cw, ch = cap
-    if cw < MULTIPLE or ch < MULTIPLE or cw % MULTIPLE or ch % MULTIPLE:
-        raise InputError(f"resolution cap {cap} must be multiples of {MULTIPLE}")
+    if cw < GRID_MULTIPLE or ch < GRID_MULTIPLE or cw % GRID_MULTIPLE or ch % GRID_MULTIPLE:
+        raise InputError(f"resolution cap {cap} must be multiples of {GRID_MULTIPLE}")
     if not (target > 0 and math.isfinite(target)):
         raise InputError(f"physical scale must be a positive finite number; got {target!r}")
     s = min(float(target), cw / bw, ch / bh)
     # ceil with a tolerance: bw * s may land a hair above a multiple of 256 through rounding
-    gw = min(cw, max(MULTIPLE, int(math.ceil(bw * s / MULTIPLE - 1e-9)) * MULTIPLE))
-    gh = min(ch, max(MULTIPLE, int(math.ceil(bh * s / MULTIPLE - 1e-9)) * MULTIPLE))
+    gw = min(cw, max(GRID_MULTIPLE, int(math.ceil(bw * s / GRID_MULTIPLE - 1e-9)) * GRID_MULTIPLE))
+    gh = min(ch, max(GRID_MULTIPLE, int(math.ceil(bh * s / GRID_MULTIPLE - 1e-9)) * GRID_MULTIPLE))
     return (gw, gh), s
 
 
@@ -488,8 +489,8 @@ class Planner:
                 pp.refine_grid = full_grid
             pp.target_scale, pp.felt_ratio = target, target / scale
             if full_scale < target * (1.0 - 1e-6):
-                need = (math.ceil(extent[0] * target / MULTIPLE) * MULTIPLE, math.ceil(extent[1] * target / MULTIPLE)
-                        * MULTIPLE)
+                need = (math.ceil(extent[0] * target / GRID_MULTIPLE) * GRID_MULTIPLE, math.ceil(extent[1] * target / GRID_MULTIPLE)
+                        * GRID_MULTIPLE)
                 cap = self._cap(bundle, kind0, False)
                 self._warn_once(bundle, "cap", f"garment {panel.bundle}: at this panel's {self.panel_pitch_mm:.3f} "
                                 f"mm/px and the bundle's {bundle.pixel_pitch_mm:.3f} mm/px the drawn garment needs a "
@@ -522,5 +523,7 @@ class Planner:
         pp.reason = ("all from cache" if not todo else
                      f"{'+'.join(todo)} at {grid[0]}x{grid[1]} (scale {scale:.2f})"
                      + (f", {'+'.join(reused)} from cache" if reused else ""))
+        if pp.graph == "full" and len(todo) == 1:
+            pp.reason += "; the bundle has no separate branches, so the full graph runs (the cost of both)"
         acc.plan_ms += 1e3 * (time.perf_counter() - t0 - (t2 - t1) - (t4 - t3))
         return pp
