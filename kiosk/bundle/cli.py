@@ -193,7 +193,10 @@ def _switch(settings: _Settings, args, action: str) -> int:
     else:
         now = store.rollback(args.garment)
     old = before.get(now.garment)
-    if old is not None and old[0] == now.version:
+    if action == "rollback":
+        print(f"rolled back {now.garment} to {now.version}" + (f" (from {old[0]})" if old and old[0] else "")
+              + f"; history: {' -> '.join(store.history(now.garment)) or now.version}")
+    elif old is not None and old[0] == now.version:
         print(f"{now.garment} {now.version} is already active")
     else:
         print(f"activated {now.garment} {now.version}" + (f" (previous: {old[0]})" if old else ""))
