@@ -92,9 +92,11 @@ def _inspect_or_verify(args) -> int:
         if args.action == "verify":
             from kiosk.bundle.probe import probe_bundle
 
-            for r in probe_bundle(bundle, threads=args.threads):
+            def show(r) -> None:
                 print(f"probe       {r.graph:8} {r.size[0]}x{r.size[1]} {r.precision}: loads in {r.load_ms:.0f} ms, "
-                      f"runs in {r.run_ms:.0f} ms, outputs finite")
+                      f"runs in {r.run_ms:.0f} ms, outputs finite", flush=True)
+
+            probe_bundle(bundle, threads=args.threads, every_size=True, report=show)   # every declared size
             print("verified    ok")
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
