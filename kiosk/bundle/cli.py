@@ -277,7 +277,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--allow-downgrade", action="store_true",
                    help="activate a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
-    p = store_parser("rollback", "go back to the previous version and tell the daemon")
+    p = store_parser("rollback", "go one step back in the activation history and tell the daemon")
     p.add_argument("garment")
     p.set_defaults(allow_downgrade=True)   # rolling back is the operator's explicit step back
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
