@@ -64,6 +64,9 @@ def _summary(bundle, panel: tuple[float, str] | None = None) -> str:
              + (f"; panel {panel[0]:.4g} mm/px ({panel[1]}): inferred at {panel[0] / m.pixel_pitch_mm:.3f} "
                 f"model px per screen px" if panel else ""),
              f"panel       {m.panel_size[0]}x{m.panel_size[1]}",
+             ("branches    2: visual-only and tactile-only renders run a one-branch graph" if m.branches == 2 else
+              "branches    1: one network computes visual and tactile; a visual-only or tactile-only render runs "
+              "the full graph and costs as much as both"),
              f"signed by   {bundle.key_id or 'NOT CHECKED'}"]
     for kind, g in m.graphs.items():
         sizes = ", ".join(f"{w}x{h}" for w, h in g.sizes)
@@ -89,9 +92,11 @@ def _inspect_or_verify(args) -> int:
         if args.action == "verify":
             from kiosk.bundle.probe import probe_bundle
 
-            for r in probe_bundle(bundle, threads=args.threads):
+            def show(r) -> None:
                 print(f"probe       {r.graph:8} {r.size[0]}x{r.size[1]} {r.precision}: loads in {r.load_ms:.0f} ms, "
-                      f"runs in {r.run_ms:.0f} ms, outputs finite")
+                      f"runs in {r.run_ms:.0f} ms, outputs finite", flush=True)
+
+            probe_bundle(bundle, threads=args.threads, every_size=True, report=show)   # every declared size
             print("verified    ok")
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
@@ -190,7 +195,10 @@ def _switch(settings: _Settings, args, action: str) -> int:
     else:
         now = store.rollback(args.garment)
     old = before.get(now.garment)
-    if old is not None and old[0] == now.version:
+    if action == "rollback":
+        print(f"rolled back {now.garment} to {now.version}" + (f" (from {old[0]})" if old and old[0] else "")
+              + f"; history: {' -> '.join(store.history(now.garment)) or now.version}")
+    elif old is not None and old[0] == now.version:
         print(f"{now.garment} {now.version} is already active")
     else:
         print(f"activated {now.garment} {now.version}" + (f" (previous: {old[0]})" if old else ""))
@@ -269,7 +277,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--allow-downgrade", action="store_true",
                    help="activate a version older than the garment's newest installed one")
     p.add_argument("--no-reload", action="store_true", help="switch the store only")
-    p = store_parser("rollback", "go back to the previous version and tell the daemon")
+    p = store_parser("rollback", "go one step back in the activation history and tell the daemon")
     p.add_argument("garment")
     p.set_defaults(allow_downgrade=True)   # rolling back is the operator's explicit step back
     p.add_argument("--no-reload", action="store_true", help="switch the store only")

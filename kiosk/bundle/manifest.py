@@ -69,6 +69,10 @@ class Manifest:
     # The friction mapping's constants beyond `friction_scale` (the `perceptual` mapping's); empty for bundles
     # written before they existed, which keep their mapping's behaviour (calibrated or quantile).
     friction_constants: dict[str, float] = field(default_factory=dict)
+    # 2: separate visual and tactile branches (a one-modality graph is cheaper than `full`). 1: one network computes
+    # every channel (the baselines), so the bundle ships only `full` and any need costs the whole network. Bundles
+    # written before the field existed are two-branch.
+    branches: int = 2
 
     def graph(self, kind: str) -> GraphSpec:
         if kind not in self.graphs:
@@ -169,7 +173,9 @@ def manifest_from_dict(doc: Any) -> Manifest:
     garment = _mapping(doc, "garment")
     _only_keys(garment, {"id", "display_name"}, "garment")
     model = _mapping(doc, "model")
-    _only_keys(model, {"version", "method", "source_run", "checkpoint_sha256"}, "model")
+    _only_keys(model, {"version", "method", "source_run", "checkpoint_sha256", "branches"}, "model")
+    branches = model.get("branches", 2)
+    _need(branches in (1, 2) and not isinstance(branches, bool), "model.branches must be 1 or 2")
     try:
         parse_version(model.get("version"))
     except VersionError as exc:
@@ -190,6 +196,8 @@ def manifest_from_dict(doc: Any) -> Manifest:
         _need(isinstance(sizes, list) and 0 < len(sizes) <= 32, f"graphs.{kind}.sizes must be a non-empty list")
         graphs[kind] = GraphSpec(_str(spec, "file", PATH_RE, f"graphs.{kind}."), precision, list(outputs),
                                  [_size(s, f"graphs.{kind}.sizes entry") for s in sizes])
+    _need(branches == 2 or set(graphs) == {"full"},
+          "a single-branch model (model.branches 1) ships only the full graph")
     haptics = _mapping(doc, "haptics")
     _only_keys(haptics, {"friction_scale", "normalization", "pixel_pitch_mm", "constants"}, "haptics")
     normalization = _str(haptics, "normalization", where="haptics.")
@@ -240,6 +248,7 @@ def manifest_from_dict(doc: Any) -> Manifest:
         errors={str(k): _flat_numbers(v, f"errors.{k}") for k, v in errors_doc.items()},
         provenance=dict(provenance),
         friction_constants=constants,
+        branches=int(branches),
     )
 
 
@@ -267,11 +276,14 @@ def manifest_to_dict(m: Manifest) -> dict:
                                "pixel_pitch_mm": m.pixel_pitch_mm}
     if m.friction_constants:  # absent in bundles that have none, so their canonical bytes stay what was signed
         haptics["constants"] = dict(sorted(m.friction_constants.items()))
+    model: dict[str, Any] = {"version": m.model_version, "method": m.method, "source_run": m.source_run,
+                             "checkpoint_sha256": m.checkpoint_sha256}
+    if m.branches != 2:   # absent for two-branch models, so their canonical bytes stay what was signed
+        model["branches"] = m.branches
     return {
         "schema_version": m.schema_version,
         "garment": {"id": m.garment_id, "display_name": m.display_name},
-        "model": {"version": m.model_version, "method": m.method, "source_run": m.source_run,
-                  "checkpoint_sha256": m.checkpoint_sha256},
+        "model": model,
         "created_at": m.created_at,
         "exporter_version": m.exporter_version,
         "graphs": {k: asdict(g) for k, g in m.graphs.items()},

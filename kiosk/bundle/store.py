@@ -45,6 +45,8 @@ from kiosk.bundle.version import VERSION_RE, newest, parse_version
 
 log = logging.getLogger(__name__)
 CURRENT, PREVIOUS, META, INCOMING, LOCK = "current", "previous", ".meta", ".incoming", ".lock"
+HISTORY = ".history"   # under META; cannot clash with a version's metadata file (<version>.json)
+HISTORY_LENGTH = 64
 GARMENT_RE = re.compile(r"\A[a-z0-9][a-z0-9._-]{0,63}\Z")
 RESERVED = {CURRENT, PREVIOUS}
 
@@ -375,6 +377,7 @@ class BundleStore:
             self._refuse_downgrade(garment, version, "activate", allow_downgrade)
             self.verify(target.path, probe=False)
             cur = self._link(garment, CURRENT)
+            self._write_history(garment, [v for v in self.history(garment) if v != version] + [version])
             if cur is not None:
                 self._set_link(garment, PREVIOUS, cur)
             self._set_link(garment, CURRENT, version)
@@ -383,21 +386,52 @@ class BundleStore:
                 self._adopt(self.root / garment / PREVIOUS)
             return self.get(garment, version)
 
+    def history(self, garment: str) -> list[str]:
+        """The versions a garment was activated with, oldest first, the active one last; only versions still
+        installed. A store written before the history existed reads as [previous, current]."""
+        path = self.root / garment / META / HISTORY
+        try:
+            doc = json.loads(path.read_text())
+        except FileNotFoundError:
+            doc = [v for v in (self._link(garment, PREVIOUS), self._link(garment, CURRENT)) if v is not None]
+        except (OSError, ValueError):
+            raise StoreError(f"{path} is damaged; remove it to fall back to the current/previous links") from None
+        if not (isinstance(doc, list) and all(isinstance(v, str) for v in doc)):
+            raise StoreError(f"{path} is not a list of versions; remove it to fall back to the current/previous "
+                             "links")
+        installed = set(self._versions(garment))
+        return [v for v in doc if v in installed]
+
+    def _write_history(self, garment: str, versions: list[str]) -> None:
+        meta = self.root / garment / META
+        meta.mkdir(parents=True, exist_ok=True)
+        tmp = meta / f".{HISTORY}.{secrets.token_hex(6)}"
+        with open(tmp, "w") as f:
+            json.dump(versions[-HISTORY_LENGTH:], f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, meta / HISTORY)
+        fsync_dir(meta)
+        self._adopt(meta / HISTORY)
+
     def rollback(self, garment: str) -> StoredBundle:
-        """Go back to the previous version in one step (current and previous swap places)."""
+        """Go back one step in the activation history: rolling back twice goes two versions back (it does not flip
+        between two), and `previous` becomes the version before the one now active."""
         with self._locked():
             _check_name("garment", garment)
             if garment not in self._garments():
                 raise StoreError(f"no garment {garment!r} in the store {self.root}")
-            prev, cur = self._link(garment, PREVIOUS), self._link(garment, CURRENT)
-            if prev is None:
-                raise StoreError(f"{garment} has no previous version to roll back to"
+            cur = self._link(garment, CURRENT)
+            hist = self.history(garment)
+            if hist and hist[-1] == cur:
+                hist = hist[:-1]
+            if not hist:
+                raise StoreError(f"{garment} has no earlier version in its history to roll back to"
                                  f"{f' (active: {cur})' if cur else ''}")
+            prev = hist[-1]
             self.verify(self.root / garment / prev, probe=False)
-            if cur is not None:
-                self._set_link(garment, PREVIOUS, cur)
-            else:
-                self._set_link(garment, PREVIOUS, None)
+            self._write_history(garment, hist)
+            self._set_link(garment, PREVIOUS, hist[-2] if len(hist) > 1 else None)
             self._set_link(garment, CURRENT, prev)
             return self.get(garment, prev)
 
@@ -408,6 +442,13 @@ class BundleStore:
     def restore(self, garment: str, *, current: str | None, previous: str | None) -> None:
         """Put a garment's links back as they were (undo of an activation the daemon refused)."""
         with self._locked():
+            if current is not None:
+                hist = self.history(garment)
+                if current in hist:   # undo of an activation: drop what came after
+                    hist = hist[:hist.index(current) + 1]
+                else:                 # undo of a rollback: the version rolled back from is active again
+                    hist.append(current)
+                self._write_history(garment, hist)
             for name, version in ((PREVIOUS, previous), (CURRENT, current)):
                 if version is not None:
                     self.get(garment, version)

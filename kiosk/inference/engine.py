@@ -184,7 +184,7 @@ class LoadedBundle:
     def info(self) -> dict:
         m = self.manifest
         return {"id": m.garment_id, "display_name": m.display_name, "model_version": m.model_version,
-                "method": m.method, "key": self.key, "signed_by": self.bundle.key_id,
+                "method": m.method, "branches": m.branches, "key": self.key, "signed_by": self.bundle.key_id,
                 "graphs": {k: {"precision": g.precision, "sizes": g.sizes} for k, g in m.graphs.items()},
                 "assets": sorted(m.assets), "friction_scale": m.friction_scale,
                 "friction_normalization": m.friction_normalization, "pixel_pitch_mm": m.pixel_pitch_mm,

@@ -222,7 +222,8 @@ class Plan:
 
 def choose_graph(needs: Sequence[str], available: Sequence[str]) -> str:
     """The cheapest graph that computes `needs`: a single-branch graph when one modality is needed (asking the
-    two-output graph for one output would still run both branches), `full` for both, `none` for nothing."""
+    two-output graph for one output would still run both branches), `full` for both or when the bundle has no
+    one-branch graph (a single-branch model: one modality costs as much as both), `none` for nothing."""
     want = set(needs)
     if not want:
         return "none"
@@ -522,5 +523,7 @@ class Planner:
         pp.reason = ("all from cache" if not todo else
                      f"{'+'.join(todo)} at {grid[0]}x{grid[1]} (scale {scale:.2f})"
                      + (f", {'+'.join(reused)} from cache" if reused else ""))
+        if pp.graph == "full" and len(todo) == 1:
+            pp.reason += "; the bundle has no separate branches, so the full graph runs (the cost of both)"
         acc.plan_ms += 1e3 * (time.perf_counter() - t0 - (t2 - t1) - (t4 - t3))
         return pp

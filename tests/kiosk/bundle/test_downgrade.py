@@ -59,8 +59,8 @@ def test_rollback_still_goes_back(tmp_path, bundles):
     store.install(bundles[NEW])
     store.activate("denim-shorts", NEW)
     assert store.rollback("denim-shorts").version == OLD        # no flag needed: the operator's explicit step
-    assert store.links("denim-shorts") == (OLD, NEW)
-    assert store.rollback("denim-shorts").version == NEW
+    assert store.links("denim-shorts") == (OLD, None)
+    assert store.activate("denim-shorts", NEW).active   # forward again is an ordinary activation
 
 
 def test_the_command_refuses_in_one_line_and_allows_with_the_flag(tmp_path, bundles):

@@ -89,17 +89,52 @@ def test_install_activate_rollback_remove_cycle(tmp_path, bundles):
     assert store.active()["denim-shorts"].version == V2
     assert [(s.version, s.active, s.previous) for s in store.list()] == [(V1, False, True), (V2, True, False)]
     back = store.rollback("denim-shorts")
-    assert back.version == V1 and store.links("denim-shorts") == (V1, V2)
-    assert store.rollback("denim-shorts").version == V2  # a second rollback undoes the first
+    assert back.version == V1 and store.links("denim-shorts") == (V1, None)
+    with pytest.raises(StoreError, match="no earlier version in its history"):
+        store.rollback("denim-shorts")  # a second rollback goes further back, not back to V2
+    assert store.activate("denim-shorts", V2).active and store.links("denim-shorts") == (V2, V1)
     with pytest.raises(StoreError, match="is the active version"):
         store.remove("denim-shorts", V2)
     store.remove("denim-shorts", V1)
     assert store.links("denim-shorts") == (V2, None)
     assert not (store.root / "denim-shorts" / V1).exists()
-    with pytest.raises(StoreError, match="no previous version to roll back to \\(active: 2026.11.22-1\\)"):
+    with pytest.raises(StoreError, match="no earlier version in its history to roll back to \\(active: 2026.11.22-1\\)"):
         store.rollback("denim-shorts")
     assert store.activate("denim-shorts", V2).active  # already active: no change
     assert store.links("denim-shorts") == (V2, None)
+
+
+def test_rollback_walks_back_through_the_history_and_says_where_it_went(tmp_path, bundles):
+    store = _store(tmp_path, bundles)
+    for v in (V1, V2, V3):
+        store.install(bundles[v])
+        store.activate("denim-shorts", v)
+    assert store.history("denim-shorts") == [V1, V2, V3]
+    assert store.rollback("denim-shorts").version == V2 and store.links("denim-shorts") == (V2, V1)
+    assert store.rollback("denim-shorts").version == V1 and store.links("denim-shorts") == (V1, None)
+    assert store.history("denim-shorts") == [V1]
+    # the daemon refused a rollback: restore puts the version rolled back from on top again
+    store.restore("denim-shorts", current=V2, previous=V1)
+    assert store.history("denim-shorts") == [V1, V2]
+    # a store written before the history existed: one step back through its previous link
+    (store.root / "denim-shorts" / ".meta" / ".history").unlink()
+    assert store.rollback("denim-shorts").version == V1
+
+
+def test_rollback_cli_names_the_version_it_went_to(tmp_path, bundles):
+    store = _store(tmp_path, bundles)
+    for v in (V1, V2, V3):
+        store.install(bundles[v])
+        store.activate("denim-shorts", v)
+    from kiosk.bundle.cli import main
+    import contextlib
+    import io
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = main(["rollback", "denim-shorts", "--store", str(store.root), "--trusted-keys", str(bundles["trusted"]),
+                   "--no-reload"])
+    assert rc == 0
+    assert out.getvalue().strip() == f"rolled back denim-shorts to {V2} (from {V3}); history: {V1} -> {V2}"
 
 
 def test_garments_are_independent(tmp_path, bundles):
@@ -327,9 +362,9 @@ def test_cli_without_a_daemon(tmp_path, bundles):
         "denim-shorts", V2, "active"]
     assert lines[1].split()[4] == "fp32"
     out = cli("rollback", "denim-shorts", *common).stdout
-    assert f"activated denim-shorts {V1} (previous: {V2})" in out
+    assert f"rolled back denim-shorts to {V1} (from {V2}); history: {V1}" in out
     listing = json.loads(cli("list", "--json", *common).stdout)
-    assert [(e["version"], e["active"], e["previous"]) for e in listing] == [(V1, True, False), (V2, False, True)]
+    assert [(e["version"], e["active"], e["previous"]) for e in listing] == [(V1, True, False), (V2, False, False)]
     bad = cli("remove", "denim-shorts", V1, *common, check=False)
     assert bad.returncode == 2 and "is the active version" in bad.stderr and "Traceback" not in bad.stderr
     assert "removed denim-shorts" in cli("remove", "denim-shorts", V2, *common).stdout
@@ -381,7 +416,7 @@ def test_cli_tells_a_running_daemon_which_swaps_or_refuses(tmp_path, bundles):
         proc = cli("activate", "denim-shorts", V2, *common, check=False)
         # the store's own re-verification refuses it before the daemon is even asked
         assert proc.returncode == 2 and "does not match its SHA-256" in proc.stderr
-        assert BundleStore(root, keys).links("denim-shorts") == (V1, V2)
+        assert BundleStore(root, keys).links("denim-shorts") == (V1, None)
     finally:
         d.stop()
 
