@@ -19,6 +19,7 @@ from kiosk.bundle.archive import Bundle
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import letterbox, network_input, object_mask
 from kiosk.inference.backends import available, open_graph
+from kiosk.inference.cpu import describe
 
 DEFAULT_BOUND_LEVELS = 0.5
 LEVELS_PER_UNIT = 127.5
@@ -40,6 +41,7 @@ class EngineChoice:
     grids: dict[str, list[int]]
     runs: int
     figures: list[EngineFigures] = field(default_factory=list)
+    cpu: dict = field(default_factory=dict)  # kiosk.inference.cpu.describe(): the figures hold on this CPU only
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -108,4 +110,4 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
         figures.append(EngineFigures(engine, round(statistics.median(total), 3), float(f"{worst:.4g}"), ok,
                                      "" if ok else f"error {worst:.3g} levels exceeds the bound {bound:g}"))
     best = min((f for f in figures if f.eligible), key=lambda f: f.ms_p50)
-    return EngineChoice(best.engine, bound, {k: list(g) for k, g in grids.items()}, runs, figures)
+    return EngineChoice(best.engine, bound, {k: list(g) for k, g in grids.items()}, runs, figures, describe())

@@ -126,3 +126,20 @@ def test_openvino_compiles_once_per_grid_and_bounds_the_cache(tmp_path):
     r.MAX_SHAPES = 1
     r.run(["tactile"], feeds(_x(768).sketch, _x(768).mask))
     assert list(r._compiled) == [(("mask", (1, 1, 768, 768)), ("sketch", (1, 1, 768, 768)))]
+
+
+X86 = "processor\t: 0\nmodel name\t: Intel(R) Xeon(R) Platinum 8480+\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f " \
+      "avx512_vnni amx_tile amx_int8\n"
+ARM = "processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd evtstrm aes crc32\nCPU part\t: 0xd0c\n"
+
+
+def test_cpu_description_names_model_and_isa_families():
+    from kiosk.inference.cpu import describe
+    d = describe(X86)
+    assert d["model"] == "Intel(R) Xeon(R) Platinum 8480+"
+    assert d["isa"] == ["avx2", "avx512", "vnni", "amx"]
+    assert describe("flags : sse4_2 avx avx2 fma\n")["isa"] == ["avx2"]
+    assert describe(ARM)["isa"] == ["neon"] and "asimd" in describe(ARM)["flags"]
+    assert describe("")["model"]  # never empty: falls back to the platform's name
+    live = describe()
+    assert live["logical_cpus"] >= 1 and isinstance(live["isa"], list)
