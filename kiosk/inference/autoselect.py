@@ -48,9 +48,13 @@ class EngineChoice:
 
 
 def error_bound(bundle: Bundle) -> float:
-    """The tightest friction MAE (levels) the bundle states for any of its graphs' precisions."""
+    """The tightest friction MAE (levels) the bundle states for its graphs: `<kind>_friction_mae_levels` (what the
+    exporter writes) or `friction_mae_levels` under each graph's precision."""
     m = bundle.manifest
-    bounds = [m.errors.get(g.precision, {}).get("friction_mae_levels") for g in m.graphs.values()]
+    bounds = []
+    for kind, g in m.graphs.items():
+        errs = m.errors.get(g.precision, {})
+        bounds.append(errs.get(f"{kind}_friction_mae_levels", errs.get("friction_mae_levels")))
     bounds = [float(b) for b in bounds if b is not None and np.isfinite(b) and b > 0]
     return min(bounds) if bounds else DEFAULT_BOUND_LEVELS
 

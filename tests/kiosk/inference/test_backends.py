@@ -107,6 +107,8 @@ def test_auto_refuses_an_engine_outside_the_stated_bound(tmp_path):
 
 def test_error_bound_reads_the_bundle_and_falls_back(tmp_path):
     assert error_bound(_bundle(tmp_path / "a", errors={"fp32": {"friction_mae_levels": 0.3}})) == 0.3
+    per_graph = {"fp32": {"full_friction_mae_levels": 0.9, "tactile_friction_mae_levels": 0.7}}
+    assert error_bound(_bundle(tmp_path / "c", errors=per_graph)) == 0.7
     # the default manifest states an int8 bound only; its graphs are fp32
     assert error_bound(_bundle(tmp_path / "b")) == DEFAULT_BOUND_LEVELS
 
