@@ -115,3 +115,38 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
                                      "" if ok else f"error {worst:.3g} levels exceeds the bound {bound:g}"))
     best = min((f for f in figures if f.eligible), key=lambda f: f.ms_p50)
     return EngineChoice(best.engine, bound, {k: list(g) for k, g in grids.items()}, runs, figures, describe())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m kiosk.inference.autoselect BUNDLE`: what `engine: auto` would pick here, as JSON."""
+    import argparse
+    import json
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from kiosk.bundle.archive import open_bundle
+    from kiosk.bundle.signature import load_trusted_keys
+    from kiosk.contract.errors import KioskError
+
+    ap = argparse.ArgumentParser(prog="python -m kiosk.inference.autoselect", description=main.__doc__)
+    ap.add_argument("bundle", type=Path)
+    ap.add_argument("--trusted-keys", type=Path, help="folder of trusted public keys (default: accept unsigned)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--max-side", type=int, default=512)
+    a = ap.parse_args(argv)
+    try:
+        with tempfile.TemporaryDirectory() as work:
+            trusted = load_trusted_keys(a.trusted_keys) if a.trusted_keys else None
+            b = open_bundle(a.bundle, trusted, workdir=Path(work), allow_unsigned=trusted is None)
+            choice = choose_engine(b, threads=a.threads, runs=a.runs, max_side=a.max_side)
+    except (KioskError, OSError) as exc:
+        print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    print(json.dumps(choice.to_json(), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -145,3 +145,15 @@ def test_cpu_description_names_model_and_isa_families():
     assert describe("")["model"]  # never empty: falls back to the platform's name
     live = describe()
     assert live["logical_cpus"] >= 1 and isinstance(live["isa"], list)
+
+
+def test_autoselect_command_prints_the_choice_and_fails_in_one_line(tmp_path, capsys):
+    from kiosk.inference.autoselect import main
+    path, trusted = make_bundle(tmp_path, graph=conv_graph)
+    assert main([str(path), "--trusted-keys", str(trusted), "--runs", "1", "--threads", "1"]) == 0
+    import json
+    out = json.loads(capsys.readouterr().out)
+    assert out["engine"] in ENGINES and out["cpu"]["model"]
+    assert main([str(tmp_path / "missing.vtb"), "--runs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
