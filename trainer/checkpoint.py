@@ -1,7 +1,7 @@
 """Checkpoints the exporter can load without the trainer's training state.
 
 `RUN/checkpoints/{latest,best}.pt` = {"generator": state_dict, "generator_class": "TwoBranchUNet" |
-"ResnetGenerator", "model_config": {...}, "method": name, "step": n, "friction_scale": float, "info": {...
+"ResnetGenerator" | "Pix2PixHDGenerator" | "SpadeGenerator", "model_config": {...}, "method": name, "step": n, "friction_scale": float, "info": {...
 perceptual backbone / substitutes used ...}, "config": the run config as a dict, "train_state": optimizers,
 discriminators, history (for resume only)}. Written atomically (temp file + rename). A missing or unreadable
 checkpoint is an error the operator sees - never silently random weights (the published code's defect).
@@ -24,7 +24,10 @@ class CheckpointError(TrainerError):
 def generator_classes() -> dict[str, type]:
     from trainer.models.generator import TwoBranchUNet
     from trainer.models.pix2pix_generator import ResnetGenerator
-    return {"TwoBranchUNet": TwoBranchUNet, "ResnetGenerator": ResnetGenerator}
+    from trainer.models.pix2pixhd_generator import Pix2PixHDGenerator
+    from trainer.models.spade_generator import SpadeGenerator
+    return {"TwoBranchUNet": TwoBranchUNet, "ResnetGenerator": ResnetGenerator,
+            "Pix2PixHDGenerator": Pix2PixHDGenerator, "SpadeGenerator": SpadeGenerator}
 
 
 def save_checkpoint(path: Path, payload: dict) -> None:

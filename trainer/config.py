@@ -45,8 +45,21 @@ class ModelConfig:
     d_scales: int = 3
     td_scales: int = 3
     d_norm: str = "batch"
-    resnet_ngf: int = 64          # pix2pix baseline
+    resnet_ngf: int = 64          # pix2pix-joint-d (the earlier pix2pix variant); the paper's baselines: `baseline`
     resnet_blocks: int = 9
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Widths of the paper's baselines (pix2pix, pix2pixHD, GauGAN), by default their authors' own: the paper ran
+    each "with the default parameters of the original works". The cpu preset narrows them and says so."""
+    ngf: int = 64                 # pix2pix ResNet generator, GauGAN (16 x ngf at the SPADE head)
+    ndf: int = 64                 # every baseline discriminator's first layer
+    resnet_blocks: int = 9        # pix2pix ResNet-9
+    hd_ngf: int = 32              # pix2pixHD local enhancer (its global net has 2 x hd_ngf)
+    hd_global_blocks: int = 9
+    hd_local_blocks: int = 3
+    spade_hidden: int = 128       # GauGAN SPADE shared-conv width
 
 
 @dataclass(frozen=True)
@@ -121,6 +134,7 @@ class RunConfig:
     preset: str = "paper"
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -167,6 +181,9 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError("data.patches must be >= 1")
     if cfg.train.steps < 1:
         raise ConfigError("train.steps must be >= 1")
+    for k in ("ngf", "ndf", "resnet_blocks", "hd_ngf", "hd_global_blocks", "hd_local_blocks", "spade_hidden"):
+        if getattr(cfg.baseline, k) < 1:
+            raise ConfigError(f"baseline.{k} must be >= 1; got {getattr(cfg.baseline, k)}")
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")

@@ -91,7 +91,7 @@ def _write_index(folder: Path, entries: list[Entry]) -> None:
     (Path(folder) / INDEX).write_text(yaml.safe_dump(doc, sort_keys=False, width=120))
 
 
-def pack(run_dir: Path, folder: Path, data_command: str, *, which: str = "best", display_name: str | None = None
+def pack(run_dir: Path, folder: Path, data_command: str, *, which: str = "latest", display_name: str | None = None
          ) -> Entry:
     """Add (or replace) the catalogue entry made from a finished run."""
     import torch
@@ -122,7 +122,7 @@ def pack(run_dir: Path, folder: Path, data_command: str, *, which: str = "best",
     if not (run_dir / "command.txt").is_file():
         raise CatalogueError(f"{run_dir}: no command.txt (runs record the command that made them); retrain it")
     train_cmd = _with_data_placeholder((run_dir / "command.txt").read_text().strip())
-    entry = Entry(id=gid, display_name=display_name or garment_dir.name.removeprefix("singleskit_").split("_padded_")[0],
+    entry = Entry(id=gid, display_name=display_name or gid.replace("-", " ").capitalize(),
                   garment=garment_dir.name, file=out.name, sha256=_sha256(out),
                   recipe_sha256=recipe_hash(ck["config"], _sha256(syn), data_command),
                   data_command=data_command, train_command=train_cmd,
@@ -219,7 +219,8 @@ def main(argv: list[str], prog: str = "vtkiosk catalogue") -> int:
     pk.add_argument("--data-command", required=True,
                     help="the command that regenerates the runs' data, with {data} for its output folder")
     pk.add_argument("--out", type=Path, default=CATALOGUE)
-    pk.add_argument("--which", default="best", choices=("best", "latest"))
+    pk.add_argument("--which", default="latest", choices=("best", "latest"),
+                    help="checkpoint to pack (default latest: the full schedule's end, weight average included)")
     ck = sub.add_parser("check", help="verify every committed entry: file hash, recipe, weights load")
     ck.add_argument("--folder", type=Path, default=CATALOGUE)
     args = p.parse_args(argv)

@@ -22,7 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "fleet": ("kiosk.fleet.cli", "publish bundles to a TUF update repository; sync a kiosk from it"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),
-    "study": ("kiosk.study.cli", "run and analyse A/B haptic user studies"),
+    "study": ("kiosk.study.cli", "plan, run and analyse haptic and visual A/B user studies"),
     "demo": ("vtkiosk.demo", "the main job: the kiosk on the trained demo catalogue with the emulated device"),
     "catalogue": ("vtkiosk.catalogue", "pack trained runs into the demo catalogue, check the committed one"),
 }

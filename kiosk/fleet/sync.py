@@ -104,13 +104,15 @@ class _Fetcher(Urllib3Fetcher):
         return super()._fetch(url)
 
 
-def activate_gated(store: BundleStore, garment: str, version: str, control_socket: Path | None) -> tuple[bool, str]:
+def activate_gated(store: BundleStore, garment: str, version: str, control_socket: Path | None, *,
+                   allow_downgrade: bool = False) -> tuple[bool, str]:
     """Activate, then ask the running daemon to load it; if the daemon refuses (it failed to load or to answer its
-    probe in budget), put the store back as it was. (True, how) or (False, the daemon's reason)."""
+    probe in budget), put the store back as it was. (True, how) or (False, the daemon's reason). Only a signed
+    withdrawal may go to an older version (`allow_downgrade`): the operator's emergency rollback."""
     from kiosk.ops.control import ControlError, NoDaemonError, send_control
 
     before = store.links(garment)
-    store.activate(garment, version)
+    store.activate(garment, version, allow_downgrade=allow_downgrade)
     if control_socket is None:
         return True, "activated (no daemon control socket configured)"
     try:
@@ -357,7 +359,7 @@ class FleetSync:
                           "it until a newer one is published")
             return res
         target = max(candidates, key=lambda v: (compare(v, active_v) < 0, parse_version(v)))
-        ok, how = activate_gated(self.store, garment, target, self.control_socket)
+        ok, how = activate_gated(self.store, garment, target, self.control_socket, allow_downgrade=True)
         res.outcome = "withdrawn_rollback" if ok else "withdrawn_kept"
         res.detail = f"{garment} {active_v} was withdrawn by the operator; back to {target}: {how}"
         res.offered = target

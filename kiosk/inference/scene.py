@@ -271,14 +271,14 @@ def physical_grid(box: tuple[float, float], target: float, cap: tuple[int, int])
     largest scale whose grid fits (the texture is then felt target/scale times coarser)."""
     bw, bh = max(float(box[0]), 1.0), max(float(box[1]), 1.0)
     cw, ch = cap
-    if cw < MULTIPLE or ch < MULTIPLE or cw % MULTIPLE or ch % MULTIPLE:
-        raise InputError(f"resolution cap {cap} must be multiples of {MULTIPLE}")
+    if cw < GRID_MULTIPLE or ch < GRID_MULTIPLE or cw % GRID_MULTIPLE or ch % GRID_MULTIPLE:
+        raise InputError(f"resolution cap {cap} must be multiples of {GRID_MULTIPLE}")
     if not (target > 0 and math.isfinite(target)):
         raise InputError(f"physical scale must be a positive finite number; got {target!r}")
     s = min(float(target), cw / bw, ch / bh)
     # ceil with a tolerance: bw * s may land a hair above a multiple of 256 through rounding
-    gw = min(cw, max(MULTIPLE, int(math.ceil(bw * s / MULTIPLE - 1e-9)) * MULTIPLE))
-    gh = min(ch, max(MULTIPLE, int(math.ceil(bh * s / MULTIPLE - 1e-9)) * MULTIPLE))
+    gw = min(cw, max(GRID_MULTIPLE, int(math.ceil(bw * s / GRID_MULTIPLE - 1e-9)) * GRID_MULTIPLE))
+    gh = min(ch, max(GRID_MULTIPLE, int(math.ceil(bh * s / GRID_MULTIPLE - 1e-9)) * GRID_MULTIPLE))
     return (gw, gh), s
 
 
@@ -488,8 +488,8 @@ class Planner:
                 pp.refine_grid = full_grid
             pp.target_scale, pp.felt_ratio = target, target / scale
             if full_scale < target * (1.0 - 1e-6):
-                need = (math.ceil(extent[0] * target / MULTIPLE) * MULTIPLE, math.ceil(extent[1] * target / MULTIPLE)
-                        * MULTIPLE)
+                mult = GRID_MULTIPLE
+                need = (math.ceil(extent[0] * target / mult) * mult, math.ceil(extent[1] * target / mult) * mult)
                 cap = self._cap(bundle, kind0, False)
                 self._warn_once(bundle, "cap", f"garment {panel.bundle}: at this panel's {self.panel_pitch_mm:.3f} "
                                 f"mm/px and the bundle's {bundle.pixel_pitch_mm:.3f} mm/px the drawn garment needs a "

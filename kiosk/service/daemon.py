@@ -529,6 +529,13 @@ class KioskDaemon:
         assert job.result is not None
         return job.result
 
+    def put_friction(self, sources: list) -> int:
+        """Put friction textures that need no model on the device (the study's familiarisation textures); returns
+        the device frame for `wait_commit`. The next rendered scene replaces them."""
+        frame = next(self._frame_ids)
+        self.device.submit(frame, list(sources))
+        return frame
+
     def wait_commit(self, device_frame: int | None, timeout_s: float = 2.0):
         if device_frame is None:
             return None

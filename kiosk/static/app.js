@@ -572,8 +572,9 @@ const attractArt = (() => {
     c.clearRect(0, 0, W, H);
     if (!items.length) return;
     const period = config.attract_garment_s * 1000;
-    const it = items[Math.floor((now - t0) / period) % items.length];
-    const p = ((now - t0) % period) / period;
+    const t = Math.max(0, now - t0);  // a frame's timestamp can precede a clock restarted by prepare()
+    const it = items[Math.floor(t / period) % items.length];
+    const p = (t % period) / period;
     const k = Math.min(W / it.w, H / it.h);
     const x = (W - it.w * k) / 2, y = (H - it.h * k) / 2;
     c.globalAlpha = p > 0.92 ? Math.max(0, (1 - p) / 0.08) : 1;

@@ -71,7 +71,7 @@ class StudyBundles:
         shutil.rmtree(self._workdir, ignore_errors=True)
 
 
-def _check_one(sb: StudyBundle) -> None:
+def _check_one(sb: StudyBundle, kind: str = "haptic") -> None:
     m = sb.bundle.manifest
     where = f"bundle {sb.path} (condition {sb.condition}, garment {sb.garment})"
     if m.garment_id != sb.garment:
@@ -86,8 +86,9 @@ def _check_one(sb: StudyBundle) -> None:
             sb.bundle.asset(a)
         except BundleError as exc:
             raise StudyBundleError(f"{where}: {exc}") from None
-    if not {"tactile", "full"} & set(m.graphs):
-        raise StudyBundleError(f"{where} has no graph that computes tactile output")
+    want = "tactile" if kind == "haptic" else "visual"
+    if not {want, "full"} & set(m.graphs):
+        raise StudyBundleError(f"{where} has no graph that computes {want} output (a {kind} study needs one)")
 
 
 def open_study_bundles(config: StudyConfig, *, workdir: Path | None = None) -> StudyBundles:
@@ -106,7 +107,7 @@ def open_study_bundles(config: StudyConfig, *, workdir: Path | None = None) -> S
                 except BundleError as exc:
                     raise StudyBundleError(f"bundle {path} (condition {cond}, garment {garment}): {exc}") from None
                 sb = StudyBundle(cond, garment, path, bundle)
-                _check_one(sb)
+                _check_one(sb, config.kind)
                 digests = {a: bundle.manifest.files[bundle.manifest.assets[a]] for a in REFERENCE_ASSETS}
                 if assets is None:
                     assets = digests

@@ -1,9 +1,12 @@
 """Typed study configuration, loaded from YAML with errors that name the key.
 
-A study compares haptic renderings: each *condition* (ours, pix2pix, an ablation, ...) is one bundle per garment.
-Every trial pits the reference condition against one other condition on one garment. Example::
+A study compares renderings: each *condition* (ours, pix2pix, an ablation, ...) is one bundle per garment. Every
+trial pits the reference condition against one other condition on one garment. Two kinds share everything below:
+`haptic` (the same ground-truth visual on both sides, two friction maps) and `visual` (two visual outputs side by
+side, the haptic layer off; paper: "Which image do you think is more realistic?"). Example::
 
     id: haptic-ab-2026
+    kind: haptic                       # or visual
     question: "Which side do you feel better matches the real object material?"
     seed: 2023
     reference: ours
@@ -20,6 +23,12 @@ Every trial pits the reference condition against one other condition on one garm
     log: study-log.jsonl
     trusted_keys: keys/                # or allow_unsigned: true (development only)
     kiosk: kiosk.yaml                  # the daemon's config (a path or an inline mapping)
+    release: each_trial                # the operator releases every trial (or new_garment, none)
+    consent: {version: "2026-01", text: "..."}       # or file: consent.txt; agreement is logged with its SHA-256
+    demographics: {age_band: ["18-24", "25-34"], dominant_hand: [left, right]}   # optional, never names
+    familiarisation:                   # haptic only: generated textures before the warm-up (never analysed)
+      screen_mm: [217, 136]            # the haptic screen's physical size, so periods are millimetres
+      textures: [{kind: uniform, level: 0.5}, {kind: grating, period_mm: 2}, {kind: bump, diameter_mm: 20}]
 
 Relative paths are resolved against the config file's folder.
 """
@@ -27,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,10 +50,25 @@ from kiosk.contract.errors import KioskError
 CODE_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}\Z")
 _ID_RE = re.compile(r"[a-z0-9][a-z0-9._-]{0,63}\Z")
 DEFAULT_QUESTION = "Which side do you feel better matches the real object material?"
+VISUAL_QUESTION = "Which image do you think is more realistic?"
+KINDS = ("haptic", "visual")
+RELEASES = ("each_trial", "new_garment", "none")
+DEFAULT_INSTRUCTIONS = {
+    "haptic": ("Slide the index finger of your dominant hand over both sides of the screen and over the real "
+               "garment on the table, as often as you like. Then tap the side that feels more like the real "
+               "material. The first pair is practice; after that you have {limit} per pair."),
+    "visual": ("You will see two images of the same garment side by side. Tap the one you think is more "
+               "realistic. The first {practice} pairs are practice; after that you have {limit} per pair."),
+}
+TEXTURE_KINDS = ("uniform", "grating", "bump", "ridge")
+DEFAULT_TEXTURES = ({"kind": "uniform", "level": 0.2}, {"kind": "uniform", "level": 0.8},
+                    {"kind": "grating", "period_mm": 8.0}, {"kind": "grating", "period_mm": 2.0},
+                    {"kind": "bump", "diameter_mm": 25.0}, {"kind": "ridge", "width_mm": 4.0})
 
 _KEYS = {"id", "question", "seed", "reference", "conditions", "comparisons", "garments", "warmup_garment",
          "warmup_trials", "test_garments", "time_limit_s", "participants", "log", "trusted_keys", "allow_unsigned",
-         "kiosk"}
+         "kiosk", "kind", "instructions", "release", "timeout_notice_s", "consent", "demographics",
+         "familiarisation", "kiosk_name"}
 _REQUIRED = {"id", "seed", "reference", "conditions", "garments", "warmup_garment", "participants", "log"}
 
 
@@ -74,6 +99,45 @@ class Participants:
 
 
 @dataclass(frozen=True)
+class Consent:
+    """The consent text participants agree to before trial 1; the log keeps its version and SHA-256."""
+
+    version: str
+    text: str
+
+    @property
+    def sha256(self) -> str:
+        return hashlib.sha256(self.text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class Texture:
+    """One familiarisation texture: a uniform friction level, a grating (period in mm), a bump or a ridge."""
+
+    kind: str
+    level: float = 0.8          # friction at the texture's peak, 0..1 of the device's range
+    period_mm: float | None = None
+    diameter_mm: float | None = None
+    width_mm: float | None = None
+
+    @property
+    def label(self) -> str:
+        if self.kind == "uniform":
+            return f"even friction, {round(100 * self.level)} %"
+        if self.kind == "grating":
+            return f"grating, {self.period_mm:g} mm period"
+        if self.kind == "bump":
+            return f"a bump, {self.diameter_mm:g} mm across"
+        return f"a ridge, {self.width_mm:g} mm wide"
+
+
+@dataclass(frozen=True)
+class Familiarisation:
+    screen_mm: tuple[float, float]
+    textures: tuple[Texture, ...]
+
+
+@dataclass(frozen=True)
 class StudyConfig:
     id: str
     seed: int
@@ -87,7 +151,15 @@ class StudyConfig:
     question: str = DEFAULT_QUESTION
     test_garments: int = 5
     warmup_trials: int = 1
-    time_limit_s: float = 60.0
+    time_limit_s: float | None = 60.0       # None: test trials are untimed too
+    kind: str = "haptic"
+    instructions: str = ""
+    release: str = "each_trial"
+    timeout_notice_s: float = 3.0
+    consent: Consent | None = None
+    demographics: dict[str, tuple[str, ...]] | None = None
+    familiarisation: Familiarisation | None = None
+    kiosk_name: str = ""
     trusted_keys: Path | None = None
     allow_unsigned: bool = False
     kiosk: Path | dict | None = None         # the daemon config: a YAML path or an inline mapping
@@ -180,6 +252,103 @@ def _participants(doc: Any) -> Participants:
     return Participants(codes=tuple(codes), pattern=pattern)
 
 
+def _instructions(doc: Any, kind: str, limit: float | None, practice: int) -> str:
+    if doc is None:
+        doc = DEFAULT_INSTRUCTIONS[kind]
+    _type(doc, str, "instructions", "text shown to the participant before the first trial")
+    if not doc.strip() or len(doc) > 2000:
+        _fail("instructions must be non-empty text of at most 2000 characters")
+    return doc.strip().replace("{limit}", "no time limit" if limit is None else f"{limit:g} seconds") \
+        .replace("{practice}", str(practice))
+
+
+def _consent(doc: Any, base: Path) -> Consent | None:
+    if doc is None:
+        return None
+    _type(doc, dict, "consent", "a mapping with 'version' and 'text' (or 'file')")
+    unknown = sorted(set(map(str, doc)) - {"version", "text", "file"})
+    if unknown:
+        _fail(f"unknown key(s) in consent: {', '.join(unknown)} (valid: version, text, file)")
+    version = doc.get("version")
+    if not isinstance(version, (str, int, float)) or isinstance(version, bool) or not str(version).strip():
+        _fail("consent.version must be the consent text's version, e.g. \"2026-01\"")
+    if ("text" in doc) == ("file" in doc):
+        _fail("consent needs exactly one of 'text' (inline) or 'file' (a text file)")
+    if "file" in doc:
+        path = _path(doc["file"], "consent.file", base)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            _fail(f"cannot read consent.file {path}: {getattr(exc, 'strerror', None) or exc}")
+    else:
+        text = _type(doc["text"], str, "consent.text", "text")
+    if not text.strip() or len(text) > 20000:
+        _fail("consent text must be non-empty and at most 20000 characters")
+    return Consent(version=str(version).strip(), text=text.strip())
+
+
+def _demographics(doc: Any) -> dict[str, tuple[str, ...]] | None:
+    if doc is None:
+        return None
+    _type(doc, dict, "demographics", "a mapping field -> list of choices (e.g. age_band, dominant_hand)")
+    out: dict[str, tuple[str, ...]] = {}
+    for name, choices in doc.items():
+        if not isinstance(name, str) or not re.fullmatch(r"[a-z][a-z0-9_]{0,31}", name):
+            _fail(f"demographics field {name!r} must be a lower-case name like age_band")
+        _type(choices, list, f"demographics.{name}", "a list of choices")
+        if not 2 <= len(choices) <= 20 or len(set(map(str, choices))) != len(choices):
+            _fail(f"demographics.{name} must list 2 to 20 distinct choices")
+        for c in choices:
+            if not isinstance(c, (str, int)) or isinstance(c, bool) or not 0 < len(str(c)) <= 40:
+                _fail(f"demographics.{name} choice {c!r} must be short text")
+        out[name] = tuple(str(c) for c in choices)
+    if not out:
+        _fail("demographics must declare at least one field (or leave the key out)")
+    return out
+
+
+def _positive(spec: dict, key: str, where: str, lo: float, hi: float) -> float:
+    v = _type(spec.get(key), (int, float), f"{where}.{key}", "a number")
+    if not lo <= float(v) <= hi:
+        _fail(f"{where}.{key} must be between {lo:g} and {hi:g}, got {v}")
+    return float(v)
+
+
+def _familiarisation(doc: Any, kind: str) -> Familiarisation | None:
+    if doc is None:
+        return None
+    if kind != "haptic":
+        _fail("familiarisation is for haptic studies (it renders textures on the haptic screen)")
+    _type(doc, dict, "familiarisation", "a mapping with screen_mm and textures")
+    unknown = sorted(set(map(str, doc)) - {"screen_mm", "textures"})
+    if unknown:
+        _fail(f"unknown key(s) in familiarisation: {', '.join(unknown)} (valid: screen_mm, textures)")
+    mm = doc.get("screen_mm")
+    if not (isinstance(mm, list) and len(mm) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                          and 10 <= v <= 2000 for v in mm)):
+        _fail("familiarisation.screen_mm must be the haptic screen's [width, height] in millimetres (10-2000), "
+              "so gratings and bumps have their stated physical size")
+    specs = doc.get("textures", list(DEFAULT_TEXTURES))
+    _type(specs, list, "familiarisation.textures", "a list of textures")
+    if not 1 <= len(specs) <= 20:
+        _fail("familiarisation.textures must list 1 to 20 textures")
+    textures = []
+    for i, spec in enumerate(specs):
+        where = f"familiarisation.textures[{i}]"
+        _type(spec, dict, where, "a mapping with 'kind'")
+        k = spec.get("kind")
+        if k not in TEXTURE_KINDS:
+            _fail(f"{where}.kind must be one of {', '.join(TEXTURE_KINDS)}, got {k!r}")
+        need = {"uniform": "level", "grating": "period_mm", "bump": "diameter_mm", "ridge": "width_mm"}[k]
+        unknown = sorted(set(map(str, spec)) - {"kind", "level", need})
+        if unknown:
+            _fail(f"unknown key(s) in {where} ({k}): {', '.join(unknown)} (valid: kind, level, {need})")
+        level = _positive(spec, "level", where, 0.0, 1.0) if "level" in spec or k == "uniform" else 0.8
+        size = {} if k == "uniform" else {need: _positive(spec, need, where, 0.2, 500.0)}
+        textures.append(Texture(kind=k, level=level, **size))
+    return Familiarisation(screen_mm=(float(mm[0]), float(mm[1])), textures=tuple(textures))
+
+
 def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "") -> StudyConfig:
     """Validate a parsed study document; raise StudyConfigError naming the first problem."""
     _type(doc, dict, "the top level", "a mapping")
@@ -219,10 +388,17 @@ def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "") -> Stud
     warmup_trials = _type(doc.get("warmup_trials", 1), int, "warmup_trials", "an integer")
     if not 0 <= warmup_trials <= 20:
         _fail(f"warmup_trials must be between 0 and 20, got {warmup_trials}")
-    limit = _type(doc.get("time_limit_s", 60.0), (int, float), "time_limit_s", "a number of seconds")
-    if not 1.0 <= float(limit) <= 3600.0:
-        _fail(f"time_limit_s must be between 1 and 3600 seconds, got {limit}")
-    question = _type(doc.get("question", DEFAULT_QUESTION), str, "question", "text")
+    kind = doc.get("kind", "haptic")
+    if kind not in KINDS:
+        _fail(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    limit = doc.get("time_limit_s", 60.0)
+    if limit is not None:
+        _type(limit, (int, float), "time_limit_s", "a number of seconds (or null: untimed)")
+        if not 1.0 <= float(limit) <= 3600.0:
+            _fail(f"time_limit_s must be between 1 and 3600 seconds, got {limit}")
+        limit = float(limit)
+    question = _type(doc.get("question", DEFAULT_QUESTION if kind == "haptic" else VISUAL_QUESTION), str,
+                     "question", "text")
     if not question.strip() or len(question) > 300:
         _fail("question must be non-empty text of at most 300 characters")
     allow_unsigned = _type(doc.get("allow_unsigned", False), bool, "allow_unsigned", "true or false")
@@ -233,11 +409,24 @@ def study_from_mapping(doc: Any, base: Path, *, source_sha256: str = "") -> Stud
     kiosk = doc.get("kiosk")
     if kiosk is not None and not isinstance(kiosk, dict):
         kiosk = _path(kiosk, "kiosk", base)
+    release = doc.get("release", "each_trial" if kind == "haptic" else "none")
+    if release not in RELEASES:
+        _fail(f"release must be one of {', '.join(RELEASES)}, got {release!r}")
+    notice = _type(doc.get("timeout_notice_s", 3.0), (int, float), "timeout_notice_s", "a number of seconds")
+    if not 0.0 <= float(notice) <= 30.0:
+        _fail(f"timeout_notice_s must be between 0 and 30 seconds, got {notice}")
+    instructions = _instructions(doc.get("instructions"), kind, limit, warmup_trials)
+    familiarisation = _familiarisation(doc.get("familiarisation"), kind)
+    kiosk_name = _type(doc.get("kiosk_name", socket.gethostname()), str, "kiosk_name", "a name")
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", kiosk_name):
+        _fail(f"kiosk_name {kiosk_name!r} must be 1-64 letters, digits, '.', '_' or '-'")
     return StudyConfig(
         id=study_id, seed=seed, reference=reference, conditions=conditions, garments=garments, warmup_garment=warmup,
         participants=_participants(doc["participants"]), log=_path(doc["log"], "log", base), comparisons=comparisons,
-        question=question.strip(), test_garments=n_test, warmup_trials=warmup_trials, time_limit_s=float(limit),
-        trusted_keys=trusted, allow_unsigned=allow_unsigned, kiosk=kiosk, source_sha256=source_sha256, base_dir=base)
+        question=question.strip(), test_garments=n_test, warmup_trials=warmup_trials, time_limit_s=limit,
+        kind=kind, instructions=instructions, release=release, timeout_notice_s=float(notice),
+        consent=_consent(doc.get("consent"), base), demographics=_demographics(doc.get("demographics")),
+        familiarisation=familiarisation, kiosk_name=kiosk_name, trusted_keys=trusted, allow_unsigned=allow_unsigned, kiosk=kiosk, source_sha256=source_sha256, base_dir=base)
 
 
 def load_study_config(path: str | Path) -> StudyConfig:

@@ -3,21 +3,24 @@
 Like PsychoPy's trial-by-trial data file, every row repeats the session columns (`participant`, `session`, `date`,
 `expName`) and carries the trial's variables and the response (`key_resp.keys`, `key_resp.rt`), so the file loads
 straight into R or pandas. Every trial of every started session appears: answered, timed out, or still pending
-(a session interrupted and not yet resumed), so nothing in the schedule is hidden.
+(a session interrupted and not yet resumed), so nothing in the schedule is hidden. Several kiosks' logs of one
+study are pooled first (`kiosk.study.merge`); the `kiosk` column says where each trial ran. A withdrawn
+participant's rows stay in the file, marked `withdrawn` = 1, so an analysis can leave them out.
 """
 from __future__ import annotations
 
 import csv
 from pathlib import Path
 
-from kiosk.study.log import LogState, load_state
+from kiosk.study.log import LogState
+from kiosk.study.merge import merge_logs
 
 COLUMNS = [
     "participant", "session", "date", "expName", "software", "trials.thisN", "block", "garment", "half",
     "reference", "comparison", "left_condition", "right_condition", "reference_side", "status", "key_resp.keys",
     "key_resp.rt", "chosen_condition", "chose_reference", "timed_out", "time_limit_s", "left_model_version",
     "left_manifest_sha256", "right_model_version", "right_manifest_sha256", "shown_wall", "response_wall",
-    "response_mono", "boot_id", "log_seq",
+    "response_mono", "boot_id", "log_seq", "kind", "kiosk", "withdrawn",
 ]
 
 
@@ -43,6 +46,8 @@ def rows(state: LogState) -> list[dict[str, object]]:
                 "left_manifest_sha256": bundles.get(t["left"], {}).get(t["garment"], {}).get("manifest_sha256", ""),
                 "right_model_version": bundles.get(t["right"], {}).get(t["garment"], {}).get("model_version", ""),
                 "right_manifest_sha256": bundles.get(t["right"], {}).get(t["garment"], {}).get("manifest_sha256", ""),
+                "kind": start.get("kind", "haptic"), "kiosk": start.get("kiosk", ""),
+                "withdrawn": int(participant in state.withdrawn),
             }
             if r is None:
                 row["status"] = "pending"
@@ -60,9 +65,9 @@ def rows(state: LogState) -> list[dict[str, object]]:
     return out
 
 
-def export_csv(log: Path, out: Path) -> int:
-    """Write the CSV; return the number of rows."""
-    state, _ = load_state(log)
+def export_csv(log: Path | list[Path], out: Path) -> int:
+    """Write the CSV of one log or of several kiosks' logs pooled; return the number of rows."""
+    state = merge_logs(list(log) if isinstance(log, (list, tuple)) else [log]).state
     table = rows(state)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

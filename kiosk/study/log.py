@@ -42,7 +42,8 @@ from kiosk.contract.errors import KioskError
 
 FORMAT = "vtkiosk-study-log"
 FORMAT_VERSION = 1
-RECORD_TYPES = ("log", "session", "resume", "shown", "response", "event", "end")
+RECORD_TYPES = ("log", "session", "resume", "shown", "response", "event", "end", "consent", "demographics",
+                "familiarisation", "release", "withdraw")
 MAX_LINE = 1 << 20
 
 
@@ -177,6 +178,23 @@ class SessionState:
     responses: dict[int, dict] = field(default_factory=dict)   # trial index -> first 'response' record
     duplicates: list[dict] = field(default_factory=list)       # later responses for an answered trial (never counted)
     ended: bool = False                             # an 'end' record (complete or stopped) not followed by 'resume'
+    consent: dict | None = None                     # the latest 'consent' record of this session
+    demographics: dict | None = None                # the 'demographics' record (declined fields are null)
+    familiarisation: list[dict] = field(default_factory=list)   # shown / skipped / complete steps (never analysed)
+
+    @property
+    def consented(self) -> bool:
+        return bool(self.consent and self.consent.get("agreed") is True)
+
+    @property
+    def familiarised(self) -> bool:
+        """The familiarisation stage is over: completed, or skipped by the operator."""
+        return any(r.get("action") in ("complete", "skipped") for r in self.familiarisation)
+
+    def familiarisation_step(self) -> int:
+        """The first texture not yet shown to the end (0 when the stage has not started)."""
+        done = [r["step"] for r in self.familiarisation if r.get("action") == "done"]
+        return max(done) + 1 if done else 0
 
     @property
     def n_trials(self) -> int:
@@ -196,6 +214,35 @@ class LogState:
     header: dict
     sessions: dict[tuple[str, int], SessionState] = field(default_factory=dict)
     events: list[dict] = field(default_factory=list)
+    withdrawn: dict[str, dict] = field(default_factory=dict)    # participant -> their 'withdraw' record
+
+    def fold(self, rec: dict) -> None:
+        """Take one valid record into the state (the one rule for replaying a log and for appending to it)."""
+        kind, key = rec["type"], (rec.get("participant"), rec.get("session"))
+        s = self.sessions.get(key)
+        if kind == "session":
+            if s is None:
+                self.sessions[key] = SessionState(participant=key[0], session=key[1], started=rec)
+        elif kind == "response":
+            if s is None:
+                self.events.append({"kind": "orphan_response", "seq": rec["seq"]})
+            elif rec["trial"] in s.responses:
+                s.duplicates.append(rec)
+            else:
+                s.responses[rec["trial"]] = rec
+        elif kind in ("end", "resume"):
+            if s is not None:
+                s.ended = kind == "end"
+        elif kind == "consent" and s is not None:
+            s.consent = rec
+        elif kind == "demographics" and s is not None:
+            s.demographics = rec
+        elif kind == "familiarisation" and s is not None:
+            s.familiarisation.append(rec)
+        elif kind == "withdraw":
+            self.withdrawn.setdefault(rec["participant"], rec)
+        elif kind == "event":
+            self.events.append(rec)
 
     def responses(self) -> list[dict]:
         """Every counted response, in log order."""
@@ -213,24 +260,7 @@ def replay(records: Iterable[dict]) -> LogState:
     header = next(it)
     state = LogState(study_id=header["study_id"], header=header)
     for rec in it:
-        kind = rec["type"]
-        key = (rec.get("participant"), rec.get("session"))
-        if kind == "session":
-            if key not in state.sessions:
-                state.sessions[key] = SessionState(participant=key[0], session=key[1], started=rec)
-        elif kind == "response":
-            s = state.sessions.get(key)
-            if s is None:
-                state.events.append({"kind": "orphan_response", "seq": rec["seq"]})
-            elif rec["trial"] in s.responses:
-                s.duplicates.append(rec)
-            else:
-                s.responses[rec["trial"]] = rec
-        elif kind in ("end", "resume"):
-            if key in state.sessions:
-                state.sessions[key].ended = kind == "end"
-        elif kind == "event":
-            state.events.append(rec)
+        state.fold(rec)
     return state
 
 
@@ -375,15 +405,7 @@ class StudyLog:
         return {"wall": wall_now(), "mono": time.monotonic(), "boot_id": self.boot_id}
 
     def _fold(self, rec: dict) -> None:
-        kind, key = rec["type"], (rec.get("participant"), rec.get("session"))
-        if kind == "session":
-            self.state.sessions.setdefault(key, SessionState(participant=key[0], session=key[1], started=rec))
-        elif kind == "response":
-            self.state.sessions[key].responses.setdefault(rec["trial"], rec)
-        elif kind in ("end", "resume") and key in self.state.sessions:
-            self.state.sessions[key].ended = kind == "end"
-        elif kind == "event":
-            self.state.events.append(rec)
+        self.state.fold(rec)
 
     def close(self) -> None:
         if self._fd >= 0:

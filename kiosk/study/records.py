@@ -13,10 +13,13 @@ from kiosk.study.schedule import Schedule, Trial
 
 def session_payload(config: StudyConfig, schedule: Schedule, bundles: dict[str, dict[str, dict]], *,
                     software: str, stamp: dict) -> dict:
-    """Session start: the full schedule, the config's hash and every bundle's identity."""
+    """Session start: the full schedule, the config's hash, the study kind, the kiosk it runs on and every bundle's
+    identity."""
     return {"study_id": config.id, "participant": schedule.participant, "session": schedule.session,
             "schedule": schedule.to_json(), "config_sha256": config.source_sha256, "question": config.question,
-            "time_limit_s": config.time_limit_s, "bundles": bundles, "software": software, **stamp}
+            "time_limit_s": config.time_limit_s, "bundles": bundles, "software": software, "kind": config.kind,
+            "kiosk": config.kiosk_name, "consent_version": config.consent.version if config.consent else None,
+            **stamp}
 
 
 def response_payload(schedule: Schedule, trial: Trial, *, choice: str | None, timeout: bool, rt_s: float | None,

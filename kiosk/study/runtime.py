@@ -5,9 +5,11 @@ output into friction maps and puts them on the haptic device. Study mode changes
 - what it serves: every (condition, garment) bundle of the study, each under the name `<condition>:<garment>`
   (the conditions share garment ids, so the garment id alone cannot name them). `study_sources` supplies these as
   the daemon's bundle candidates, so they are verified, probed and reported by the daemon's own reload path;
-- what is shown: the study service builds each trial's two-panel scene (reference visual, model tactile, the same
-  half) and calls `KioskDaemon.show`; the planner runs the tactile graphs only. The study page is at /study, its
-  API under /api/study/, the operator's ops (`study.start|status|stop`) on the daemon's control socket.
+- what is shown: the study service builds each trial's two-panel scene (haptic study: reference visual, model
+  tactile, the same half; visual study: each side's model visual, no tactile) and calls `KioskDaemon.show`; the
+  planner runs the tactile (or visual) graphs only. Familiarisation textures go to the device as ready friction
+  maps. The study page is at /study, the researcher's live view at /study-operator, the API under /api/study/,
+  the operator's ops (`study.start|status|stop|next|skip|withdraw`) on the daemon's control socket.
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ from kiosk.service.daemon import KioskDaemon
 from kiosk.inference.engine import LoadedBundle
 from kiosk.ops.health import storage_check
 from kiosk.ops.logsetup import configure_logging, say_line
+from kiosk.inference.render import Texture
 from kiosk.ops.signals import on_signals
 from kiosk.inference.scene import Panel, Scene, SketchInput
 from kiosk.study.bundles import StudyBundle, StudyBundles, open_study_bundles
@@ -38,8 +41,9 @@ SHUTDOWN_STACKS_AFTER_S = 20.0   # a stop slower than this dumps all thread stac
 class _ConditionBundle(LoadedBundle):
     """A study bundle served under `<condition>:<garment>` (what the daemon keys bundles and panels by)."""
 
-    def __init__(self, sb: StudyBundle, **kwargs: Any) -> None:
+    def __init__(self, sb: StudyBundle, *, kind: str = "haptic", **kwargs: Any) -> None:
         self.study_name = bundle_name(sb)
+        self.study_kind = kind
         super().__init__(sb.bundle, **kwargs)
 
     @property
@@ -47,33 +51,51 @@ class _ConditionBundle(LoadedBundle):
         return self.study_name
 
     def graphs(self) -> tuple[str, ...]:
-        """Study trials show the reference visual, so only the tactile graph is ever needed: the daemon loads,
-        probes and plans with nothing else (a bundle without one falls back to its full graph)."""
-        return ("tactile",) if "tactile" in self.manifest.graphs else ("full",)
+        """A haptic trial shows the reference visual, so only the tactile graph is ever needed (a visual trial: only
+        the visual graph): the daemon loads, probes and plans with nothing else (a bundle without that graph falls
+        back to its full graph)."""
+        want = "tactile" if self.study_kind == "haptic" else "visual"
+        return (want,) if want in self.manifest.graphs else ("full",)
 
 
 def bundle_name(sb: StudyBundle) -> str:
     return sb.key
 
 
-def study_sources(config: KioskConfig, study_bundles: StudyBundles):
+def study_sources(config: KioskConfig, study_bundles: StudyBundles, kind: str = "haptic"):
     """The daemon's `bundle_sources`: exactly the study's bundles (verified once by `open_study_bundles`), each
     served under `<condition>:<garment>`."""
     inf = config.inference
 
     def load(sb: StudyBundle) -> LoadedBundle:
-        return _ConditionBundle(sb, threads=inf.threads, providers=inf.providers, precisions=inf.precisions,
-                                source=f"study:{sb.path}")
+        return _ConditionBundle(sb, kind=kind, threads=inf.threads, providers=inf.providers,
+                                precisions=inf.precisions, source=f"study:{sb.path}")
 
     return lambda: [(f"study:{sb.path}", lambda sb=sb: load(sb)) for sb in study_bundles.items.values()]
+
+
+class _ReadyFriction:
+    """A friction texture that needs no model (familiarisation), in the shape the device output takes."""
+
+    ms = 0.0
+    nonfinite = 0
+
+    def __init__(self, texture: Texture) -> None:
+        self.panel = texture.panel
+        self._texture = texture
+        self.rect = texture.rect
+
+    def texture(self) -> Texture:
+        return self._texture
 
 
 class DaemonRenderer:
     """Puts study scenes on the device through the daemon and waits until the device holds them."""
 
-    def __init__(self, daemon: KioskDaemon, bundles: StudyBundles) -> None:
+    def __init__(self, daemon: KioskDaemon, bundles: StudyBundles, kind: str = "haptic") -> None:
         self.daemon = daemon
         self.bundles = bundles
+        self.kind = kind
 
     def screen(self) -> tuple[int, int]:
         try:
@@ -84,13 +106,17 @@ class DaemonRenderer:
 
     def render(self, scene: Scene) -> Rendered:
         result = self.daemon.show(scene, {}, client="study", timeout_s=30.0)
+        allowed = ("tactile", "none") if self.kind == "haptic" else ("visual", "none")
         for pp in result.plan.panels:
-            if pp.graph not in ("tactile", "none"):
-                raise StudyError(f"panel {pp.panel}: the planner chose the {pp.graph} graph; a study trial must run "
-                                 "tactile inference only")
+            if pp.graph not in allowed:
+                raise StudyError(f"panel {pp.panel}: the planner chose the {pp.graph} graph; a {self.kind} study "
+                                 f"trial must run {allowed[0]} inference only")
         bad = [f"{p.panel}: {p.notice or p.status}" for p in result.panels if p.status != "ok"]
         if bad:
-            raise StudyError("no friction map for " + "; ".join(bad))
+            raise StudyError(f"no {'friction map' if self.kind == 'haptic' else 'visual output'} for "
+                             + "; ".join(bad))
+        if self.kind == "visual":
+            return self._visuals(result)
         commit = self.daemon.wait_commit(result.device_frame, COMMIT_TIMEOUT_S)
         if commit is None or commit.status != "committed":
             raise StudyError(f"the haptic device did not take the trial's friction frame "
@@ -102,6 +128,31 @@ class DaemonRenderer:
                 raise StudyError(f"panel {pp.panel} has no reference placement")
             placements[pp.panel] = {"scale": pl.scale, "x": pl.x, "y": pl.y, "size": list(pl.size)}
         return Rendered(placements=placements, frame=result.device_frame)
+
+    @staticmethod
+    def _visuals(result) -> Rendered:
+        """Each panel's visual output (RGBA at the network grid) as PNG, and the screen rectangle it fills."""
+        import cv2
+
+        placements, images = {}, {}
+        for pr in result.panels:
+            if pr.visual is None or pr.plan.region is None:
+                raise StudyError(f"panel {pr.panel}: the model returned no visual output")
+            ok, buf = cv2.imencode(".png", cv2.cvtColor(pr.visual, cv2.COLOR_RGBA2BGRA))
+            if not ok:
+                raise StudyError(f"panel {pr.panel}: the visual output could not be encoded")
+            placements[pr.panel] = {"rect": list(pr.plan.region)}
+            images[pr.panel] = buf.tobytes()
+        return Rendered(placements=placements, frame=result.frame, images=images)
+
+    def friction(self, rect: tuple[int, int, int, int], pixels) -> None:
+        """Put a ready friction map at `rect` on the device and wait until it holds it."""
+        x, y, _, _ = rect
+        frame = self.daemon.put_friction([_ReadyFriction(Texture("familiarisation", pixels, x, y))])
+        commit = self.daemon.wait_commit(frame, COMMIT_TIMEOUT_S)
+        if commit is None or commit.status != "committed":
+            raise StudyError(f"the haptic device did not take the familiarisation texture "
+                             f"({commit.status if commit else 'no commit'}); is it connected?")
 
     def clear(self) -> None:
         """Blank the device: a scene whose only panel has nothing drawn yet (an empty, valid frame)."""
@@ -171,14 +222,15 @@ class StudyRuntime:
             raise
         try:
             kcfg = kiosk_config_for(config, self.bundles, port=port, control_socket=control_socket, device=device)
-            self.daemon = KioskDaemon(kcfg, bundle_sources=study_sources(kcfg, self.bundles))
+            self.daemon = KioskDaemon(kcfg, bundle_sources=study_sources(kcfg, self.bundles, config.kind))
             self.daemon.start()
             served = set(self.daemon.bundles)
             missing = sorted(bundle_name(sb) for sb in self.bundles.items.values() if bundle_name(sb) not in served)
             if missing:
                 raise StudyError(f"the daemon could not serve study bundle(s) {', '.join(missing)}: "
                                  f"{self.daemon.status().get('last_reload')}")
-            self.service = StudyService(config, self.log, self.bundles, DaemonRenderer(self.daemon, self.bundles))
+            self.service = StudyService(config, self.log, self.bundles,
+                                        DaemonRenderer(self.daemon, self.bundles, config.kind))
             self.daemon.server.route("GET", "/api/study/", self.service.http_get)
             self.daemon.server.route("POST", "/api/study/", self.service.http_post)
             self.daemon.add_control_handler("study.", self.service.control)

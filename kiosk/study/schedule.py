@@ -62,7 +62,7 @@ class Trial:
     comparison: str       # the condition compared against the reference
     left: str             # condition rendered under the left panel
     right: str            # condition rendered under the right panel
-    half: str             # garment half shown on both panels: "left" or "right"
+    half: str             # garment half shown on both panels: "left" or "right" ("full" in a visual study)
 
     @property
     def timed(self) -> bool:
@@ -145,5 +145,7 @@ def make_schedule(config: StudyConfig, participant: str, session: int = 1) -> Sc
     for i, (garment, c) in enumerate(plan):
         left, right = (ref, c) if ref_side[i] == "left" else (c, ref)
         trials.append(Trial(len(trials), "test", garment, c, left, right, halves[i]))
+    if config.kind == "visual":
+        trials = [Trial(t.index, t.block, t.garment, t.comparison, t.left, t.right, "full") for t in trials]
     return Schedule(study_id=config.id, participant=participant, session=session, seed=config.seed, reference=ref,
                     trials=tuple(trials))

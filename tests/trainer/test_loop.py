@@ -16,9 +16,13 @@ from trainer.loop import Trainer
 from trainer.methods import METHODS
 from trainer.models.generator import TwoBranchUNet
 from trainer.models.pix2pix_generator import ResnetGenerator
+from trainer.models.pix2pixhd_generator import Pix2PixHDGenerator
+from trainer.models.spade_generator import SpadeGenerator
 from vtkiosk.cli import main as vtkiosk
 
 torch.set_num_threads(2)
+GENERATORS = {"pix2pix": ResnetGenerator, "pix2pix-joint-d": ResnetGenerator, "pix2pixhd": Pix2PixHDGenerator,
+              "gaugan": SpadeGenerator}
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +46,7 @@ def test_every_method_trains_and_checkpoints(synth, tmp_path, method):
                                         for h in tr.history for k, v in h.items())
     net, info = load_generator(tmp_path / "run", "latest")
     assert info["method"] == method and info["step"] == 2 and info["friction_scale"] > 0
-    assert isinstance(net, ResnetGenerator if method == "pix2pix" else TwoBranchUNet) and not net.training
+    assert isinstance(net, GENERATORS.get(method, TwoBranchUNet)) and not net.training
     assert any(not torch.equal(init[k], v) for k, v in net.state_dict().items())
     for f in ("config.yaml", "metrics.json", "curves.png", "samples/step_00002.png", "checkpoints/best.pt"):
         assert (tmp_path / "run" / f).is_file(), f

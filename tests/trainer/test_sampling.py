@@ -71,7 +71,7 @@ def test_laplacian_unpaired_patches_sit_where_paired_ones_do(tmp_path_factory):
     """Paired patches favour busy sketch; uniform unpaired ones land mostly on plain cloth, which the tactile D
     learns as a 'fake' cue. Laplacian-weighted ones land on sketch as busy as the paired ones'."""
     garment = generate_dataset(tmp_path_factory.mktemp("synth"), garments=1, seed=0, frame=(640, 480),
-                               progress=False)[0]
+                               progress=False, profile="easy")[0]
     ratio = {}
     for how in ("uniform", "laplacian"):
         data = GarmentData(garment, DataConfig(crop=512, patches=32, unpaired=64, unpaired_sampling=how), seed=3)

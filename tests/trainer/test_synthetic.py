@@ -1,4 +1,5 @@
-"""Synthetic garments: the published TouchClothing layout, physically consistent tactile truth, fabric character."""
+"""Synthetic garments (easy profile): the published TouchClothing layout, physically consistent tactile truth, fabric
+character. The hard profile's own properties: test_synthetic_hard.py."""
 from __future__ import annotations
 
 import re
@@ -23,7 +24,7 @@ KEYS = {"gx_raw", "gy_raw", "vision_mask_x", "vision_mask_y", "vision_mask_h", "
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     out = tmp_path_factory.mktemp("synth")
-    return syn.generate_dataset(out, garments=2, seed=3, frame=FRAME, progress=False)
+    return syn.generate_dataset(out, garments=2, seed=3, frame=FRAME, progress=False, profile="easy")
 
 
 def _one(folder: Path, sub: str) -> Path:
@@ -182,12 +183,13 @@ def _arrays(folder: Path) -> dict[str, np.ndarray]:
 
 def test_deterministic_for_a_seed(tmp_path: Path, dataset: list[Path]) -> None:
     spec = syn.default_specs(2, 3)[0]
-    again = _arrays(syn.generate_garment(tmp_path / "a", spec, frame=FRAME))
+    again = _arrays(syn.generate_garment(tmp_path / "a", spec, frame=FRAME, profile="easy"))
     first = _arrays(dataset[0])
     assert again.keys() == first.keys()
     for k in first:
         assert first[k].tobytes() == again[k].tobytes(), k
-    other = _arrays(syn.generate_garment(tmp_path / "b", replace(spec, seed=spec.seed + 1), frame=FRAME))
+    other = _arrays(syn.generate_garment(tmp_path / "b", replace(spec, seed=spec.seed + 1), frame=FRAME,
+                                         profile="easy"))
     assert other["trainI"].tobytes() != first["trainI"].tobytes()
     assert other["fullT/height_mm"].tobytes() != first["fullT/height_mm"].tobytes()
     assert syn.default_specs(3, 1) != syn.default_specs(3, 2)
@@ -195,8 +197,8 @@ def test_deterministic_for_a_seed(tmp_path: Path, dataset: list[Path]) -> None:
 
 def test_prints_change_albedo_not_height(tmp_path: Path) -> None:
     spec = syn.GarmentSpec(name="KnitSkirt", shape="skirt", fabric="knit", seed=11, flowers=0, text="")
-    plain = _arrays(syn.generate_garment(tmp_path / "plain", spec, frame=FRAME))
-    printed = _arrays(syn.generate_garment(tmp_path / "print", replace(spec, text="VT"), frame=FRAME))
+    plain = _arrays(syn.generate_garment(tmp_path / "plain", spec, frame=FRAME, profile="easy"))
+    printed = _arrays(syn.generate_garment(tmp_path / "print", replace(spec, text="VT"), frame=FRAME, profile="easy"))
     assert plain["fullT/height_mm"].tobytes() == printed["fullT/height_mm"].tobytes()
     assert np.abs(plain["trainI"].astype(int) - printed["trainI"].astype(int)).max() > 100
 

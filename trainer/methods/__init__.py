@@ -8,6 +8,9 @@ from trainer.errors import TrainerError
 METHODS: dict[str, str] = {
     "ours": "trainer.methods.ours:Ours",
     "pix2pix": "trainer.methods.pix2pix:Pix2Pix",
+    "pix2pixhd": "trainer.methods.pix2pixhd:Pix2PixHD",
+    "gaugan": "trainer.methods.gaugan:GauGAN",
+    "pix2pix-joint-d": "trainer.methods.pix2pix_joint_d:Pix2PixJointD",
     "ours-no-gan": "trainer.methods.ours_no_gan:OursNoGAN",
     "ours-no-rec": "trainer.methods.ours_no_rec:OursNoRec",
     "no-visual-gan": "trainer.methods.no_visual_gan:NoVisualGAN",

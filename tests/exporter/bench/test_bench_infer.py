@@ -29,9 +29,10 @@ def fp32_bundle(run_dir, tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_bench_fp32_bundle_with_run(fp32_bundle, tmp_path):
+def test_bench_fp32_bundle_with_run(fp32_bundle, run_dir, tmp_path):
     out_json, out_png = tmp_path / "b.json", tmp_path / "b.png"
-    proc = vtk("bench", "infer", "--bundle", fp32_bundle, "--precisions", "fp32,int8", "--runs", 3, "--warmup", 1,
+    # the manifest names its run relative to the export's working folder (or by a hash): name it here
+    proc = vtk("bench", "infer", "--bundle", fp32_bundle, "--run", run_dir, "--precisions", "fp32,int8", "--runs", 3, "--warmup", 1,
                "--error-sketches", 1, "--json", out_json, "--plot", out_png, "--profile", "--no-progress")
     assert proc.returncode == 0, proc.stderr
     assert "| graph | size | prec |" in proc.stdout and "goals at the bundle's precision (fp32)" in proc.stdout

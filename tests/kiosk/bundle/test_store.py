@@ -337,7 +337,10 @@ def test_cli_without_a_daemon(tmp_path, bundles):
     assert bad.returncode == 2 and "is not signed" in bad.stderr
     bad = cli("activate", "silk", "1", *common, check=False)
     assert bad.returncode == 2 and "no garment 'silk'" in bad.stderr
+    (tmp_path / "empty").mkdir()
     assert "no bundles installed" in cli("list", "--store", tmp_path / "empty").stdout
+    bad = cli("list", "--store", tmp_path / "typo", check=False)
+    assert bad.returncode == 2 and "no bundle store at" in bad.stderr
 
 
 def test_cli_reads_store_keys_and_socket_from_the_kiosk_config(tmp_path, bundles):

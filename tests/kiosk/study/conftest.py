@@ -28,7 +28,9 @@ def write_study(folder: Path, env: tuple[Path, Path], name: str = "study", **ove
                     conditions={c: str(root / "bundles" / c / "{garment}.vtb") for c in CONDITIONS},
                     trusted_keys=str(trusted), allow_unsigned=False, log=f"{name}.jsonl",
                     # a generous probe budget: these tests check behaviour, not speed, on a shared 2-core box
-                    kiosk={"server": {"port": 0}, "inference": {"latency_budget_ms": 5000}})
+                    kiosk={"server": {"port": 0}, "inference": {"latency_budget_ms": 5000}},
+                    # trials follow each other at once unless a test asks for the operator's release
+                    release="none", timeout_notice_s=0)
     doc.update(overrides)
     path = folder / f"{name}.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))

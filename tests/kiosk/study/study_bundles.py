@@ -12,19 +12,24 @@ from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
 from tests.kiosk.bundle_factory import base_manifest, make_assets
 
-GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "abl": 0.08}
+GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "gaugan": 0.05, "abl": 0.08, "ours-no-gan": 0.09,
+         "ours-no-rec": 0.07}
 
 
 def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
-    """visual = tanh(concat(sketch, mask, sketch)) * mask; tactile = gain * concat(sketch, -sketch) * mask."""
+    """visual = tanh(10 * gain * concat(sketch, mask, sketch)) * mask; tactile = gain * concat(sketch, -sketch) * mask
+    (so each condition's visual output differs too: the visual study can tell them apart)."""
     dims = [1, 1, "H", "W"]
     inputs = [helper.make_tensor_value_info("sketch", TensorProto.FLOAT, dims),
               helper.make_tensor_value_info("mask", TensorProto.FLOAT, dims)]
     nodes = [helper.make_node("Constant", [], ["k"], value=helper.make_tensor("k", TensorProto.FLOAT, [], [gain]))]
     outs = []
     if "visual" in outputs:
-        nodes += [helper.make_node("Concat", ["sketch", "mask", "sketch"], ["v3"], axis=1),
-                  helper.make_node("Tanh", ["v3"], ["vt"]), helper.make_node("Mul", ["vt", "mask"], ["visual"])]
+        nodes += [helper.make_node("Constant", [], ["kv"],
+                                   value=helper.make_tensor("kv", TensorProto.FLOAT, [], [10 * gain])),
+                  helper.make_node("Concat", ["sketch", "mask", "sketch"], ["v3"], axis=1),
+                  helper.make_node("Mul", ["v3", "kv"], ["v4"]),
+                  helper.make_node("Tanh", ["v4"], ["vt"]), helper.make_node("Mul", ["vt", "mask"], ["visual"])]
         outs.append(helper.make_tensor_value_info("visual", TensorProto.FLOAT, [1, 3, "H", "W"]))
     if "tactile" in outputs:
         nodes += [helper.make_node("Neg", ["sketch"], ["neg"]),

@@ -65,7 +65,9 @@ def test_a_trial_puts_two_tactile_renderings_under_one_reference_visual(running)
             assert centre == pytest.approx(x + w if trial.half == "left" else x, abs=1e-6)
         # the planner ran tactile graphs only: no visual inference in a study trial
         _, plan = page.raw("GET", "/api/plan")
-        assert [p["graph"] for p in plan["plan"]["panels"]] == ["tactile", "tactile"]
+        # (a panel whose tactile output is already cached for the same content runs no graph at all)
+        assert all(p["graph"] == "tactile" or (p["graph"] == "none" and p["reused"] == ["tactile"])
+                   for p in plan["plan"]["panels"]), plan["plan"]["panels"]
         assert [p["bundle"] for p in plan["plan"]["panels"]] == [f"{trial.left}:{trial.garment}",
                                                                  f"{trial.right}:{trial.garment}"]
         # the device holds the two friction maps, each under its own panel, at its condition's level
