@@ -32,7 +32,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   .venv/bin/pip install -q --upgrade pip
   # torch first, from the CPU wheel; the constraints file keeps every later resolve on it.
   .venv/bin/pip install -q -c constraints.txt "torch==2.13.0"
-  extras="train,export,fleet,dev"
+  extras="train,export,fleet,openvino,dev"
   if pkg-config --exists libsystemd 2>/dev/null; then extras="$extras,journal"; fi
   .venv/bin/pip install -q -c constraints.txt -e ".[${extras}]"
   echo "$want" > "$stamp"

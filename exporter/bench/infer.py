@@ -166,7 +166,10 @@ def _environment() -> dict:
                 break
     except OSError:
         pass
-    env = {"cpu": cpu, "logical_cpus": os.cpu_count(), "python": platform.python_version(),
+    from kiosk.inference.cpu import describe
+    desc = describe()
+    env = {"cpu": cpu, "isa": desc["isa"], "isa_flags": desc["flags"], "arch": desc["arch"],
+           "logical_cpus": os.cpu_count(), "python": platform.python_version(),
            "platform": platform.platform(), "onnxruntime": ort.__version__, "numpy": np.__version__,
            "loadavg_start": list(os.getloadavg())}
     if torch_available():

@@ -1,7 +1,8 @@
-"""Inference: a verified bundle's ONNX Runtime sessions, the output cache, and finite checks on every output.
+"""Inference: a verified bundle's engine sessions, the output cache, and finite checks on every output.
 
-One `LoadedBundle` per garment holds its sessions (created on first use per graph kind, with the configured
-threads and provider; `warm()` creates and runs them ahead of the first stroke), its friction calibration and its
+One `LoadedBundle` per garment holds its sessions (created on first use per graph kind, in the configured engine
+(`kiosk.inference.backends`; `auto` picks one at construction by timing them), with the configured threads and
+provider; `warm()` creates and runs them ahead of the first stroke), its friction calibration and its
 reference assets. Outputs are checked before anything downstream sees them: a graph that returns NaN/Inf raises
 `NonFiniteOutput` and the daemon keeps its last good frame. `OutputCache` keeps recent outputs by the planner's
 content key, so an unchanged sketch (undo, a re-layout, a device reconnect) costs no inference.
@@ -21,12 +22,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import onnxruntime as ort
 
 from kiosk.bundle.archive import MANIFEST, Bundle
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import BundleError
-from kiosk.bundle.probe import session_options
+from kiosk.inference.autoselect import EngineChoice, choose_engine
+from kiosk.inference.backends import Runner, open_graph
 from kiosk.contract.graph import OUTPUT_CHANNELS, feeds
 from kiosk.contract.sketch import NetworkInput
 
@@ -115,7 +116,7 @@ class LoadedBundle:
 
     def __init__(self, bundle: Bundle, *, threads: int = 2, providers: list[str] | None = None,
                  precisions: tuple[str, ...] = ("int8", "fp32", "fp16"), owned_dir: Path | None = None,
-                 source: str = ""):
+                 source: str = "", engine: str = "onnxruntime", auto_max_side: int = 512, auto_runs: int = 3):
         m = bundle.manifest
         for kind, spec in m.graphs.items():
             if spec.precision not in precisions:
@@ -129,7 +130,16 @@ class LoadedBundle:
         self.owned_dir = owned_dir
         digest = hashlib.sha256((bundle.root / MANIFEST).read_bytes()).hexdigest()[:16]
         self.key = f"{m.garment_id}@{m.model_version}#{digest}"
-        self._sessions: dict[str, ort.InferenceSession] = {}
+        self._sessions: dict[str, Runner] = {}
+        self.engine_choice: EngineChoice | None = None
+        if engine == "auto":
+            try:
+                self.engine_choice = choose_engine(bundle, threads=threads, providers=self.providers,
+                                                   max_side=auto_max_side, runs=auto_runs)
+            except Exception as exc:  # noqa: BLE001 - the reference engine itself failed: the bundle is unusable
+                raise InferenceError(f"{m.garment_id}: engine benchmark failed ({exc})") from exc
+            engine = self.engine_choice.engine
+        self.engine = engine
         self._lock = threading.Lock()
         self._sketch = bundle.asset("sketch") if "sketch" in m.assets else None
         mask = bundle.asset("mask") if "mask" in m.assets else None
@@ -188,18 +198,18 @@ class LoadedBundle:
                 "graphs": {k: {"precision": g.precision, "sizes": g.sizes} for k, g in m.graphs.items()},
                 "assets": sorted(m.assets), "friction_scale": m.friction_scale,
                 "friction_normalization": m.friction_normalization, "pixel_pitch_mm": m.pixel_pitch_mm,
-                "source": self.source}
+                "source": self.source, "engine": self.engine,
+                "engine_choice": self.engine_choice.to_json() if self.engine_choice else None}
 
     # -- sessions ------------------------------------------------------------------------------------------------
-    def session(self, kind: str) -> ort.InferenceSession:
+    def session(self, kind: str) -> Runner:
         with self._lock:
             sess = self._sessions.get(kind)
             if sess is None:
                 path = self.bundle.graph_path(kind)
-                opts = session_options(self.threads)  # idle threads sleep: see session_options
                 try:
-                    sess = ort.InferenceSession(str(path), opts, providers=self.providers)
-                except Exception as exc:  # noqa: BLE001 - ORT's own exception types; all mean "unusable"
+                    sess = open_graph(self.engine, path, threads=self.threads, providers=self.providers)
+                except Exception as exc:  # noqa: BLE001 - the engines' own exception types; all mean "unusable"
                     raise InferenceError(f"{self.garment_id}: graph {kind} does not load ({exc})") from exc
                 self._sessions[kind] = sess
             return sess

@@ -67,6 +67,27 @@ class StoreConfig:
     allow_unsigned: bool = False
 
 
+ENGINE_TYPES = ("onnxruntime", "openvino", "auto")
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Which engine runs the bundle's ONNX graphs (`kiosk.inference.backends`). auto: time the installed engines on
+    each bundle at activation and keep the fastest inside the bundle's stated error (auto_runs timed runs each)."""
+
+    type: str = "onnxruntime"
+    auto_runs: int = 3
+
+    def __post_init__(self) -> None:
+        _check(self.type in ENGINE_TYPES, f"inference.engine.type must be one of {', '.join(ENGINE_TYPES)}")
+        _check(1 <= self.auto_runs <= 50, "inference.engine.auto_runs must be from 1 to 50")
+        if self.type == "openvino":
+            from kiosk.inference.backends import available
+
+            _check("openvino" in available(),
+                   "inference.engine.type is openvino, which is not installed (pip install 'vtkiosk[openvino]')")
+
+
 @dataclass(frozen=True)
 class InferenceConfig:
     """ONNX Runtime settings and the scene planner's limits.
@@ -89,6 +110,7 @@ class InferenceConfig:
     margin_px: int = 16
     cache_mb: int = 64
     refine: bool = True
+    engine: EngineConfig = field(default_factory=EngineConfig)
 
     def __post_init__(self) -> None:
         _check(1 <= self.threads <= 64, "inference.threads must be an integer from 1 to 64")

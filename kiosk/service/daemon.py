@@ -34,6 +34,7 @@ from kiosk.bundle.archive import open_bundle, verify_directory
 from kiosk.service.config import KioskConfig
 from kiosk.service.device_output import DeviceOutput
 from kiosk.inference.engine import InferenceError, LoadedBundle, NonFiniteOutput, OutputCache, visual_rgba
+from kiosk.inference.backends import ENGINES
 from kiosk.contract.errors import InputError, KioskError
 from kiosk.contract.graph import grid_floor
 from kiosk.ops.health import CheckResult, Heartbeat, HealthMonitor, device_check, health_metrics, http_check
@@ -167,6 +168,12 @@ class KioskDaemon:
         self.m_device_errors = r.counter("vtkiosk_device_errors_total", "Haptic device errors.", labels=("kind",))
         self.m_device_up = r.gauge("vtkiosk_device_up", "1 while the haptic link is up.")
         self.m_degraded = r.gauge("vtkiosk_degraded", "1 while the kiosk shows a degraded notice.")
+        self.m_engine = r.gauge("vtkiosk_engine_selected", "1 for the inference engine each garment runs on.",
+                                labels=("garment", "engine"))
+        self.m_engine_ms = r.gauge("vtkiosk_engine_bench_ms", "Activation benchmark (engine: auto): median ms per "
+                                   "pass over the bundle's graphs.", labels=("garment", "engine"))
+        self.m_engine_err = r.gauge("vtkiosk_engine_bench_error_levels", "Activation benchmark: mean |diff| vs "
+                                    "ONNX Runtime in 8-bit levels.", labels=("garment", "engine"))
         self.m_cache = r.counter("vtkiosk_cache_total", "Output cache lookups by the planner.", labels=("result",))
         self.m_pixels = r.counter("vtkiosk_pixels_total", "Network pixels computed vs the naive full-frame plan.",
                                   labels=("plan",))
@@ -212,7 +219,8 @@ class KioskDaemon:
 
         def make(bundle, source, owned=None) -> LoadedBundle:
             return LoadedBundle(bundle, threads=inf.threads, providers=inf.providers, precisions=inf.precisions,
-                                owned_dir=owned, source=source)
+                                owned_dir=owned, source=source, engine=inf.engine.type,
+                                auto_max_side=inf.max_resolution, auto_runs=inf.engine.auto_runs)
 
         if store.root is not None:
             from kiosk.bundle.store import BundleStore
@@ -312,6 +320,8 @@ class KioskDaemon:
                 merged = current  # never swap to nothing
                 removed = []
             self._bundles = merged  # the swap: one reference assignment; jobs in flight keep their snapshot
+            for lb in new.values():
+                self._record_engine(lb)
             for g in removed:
                 report["removed"].append(g)
             now = time.monotonic()
@@ -721,12 +731,25 @@ class KioskDaemon:
 
     def _api_healthz(self, req: Request) -> Response:
         report = self.health.run()  # fresh: the checks only read state the working threads keep
-        body = {**report.to_json(), "scale": self.scale_info()}
+        body = {**report.to_json(), "scale": self.scale_info(), "engines": self.engine_info()}
         if self.config.fleet.enabled:
             from kiosk.fleet.state import STATE_FILE, section
 
             body["fleet"] = section(self.config.fleet.state_dir / STATE_FILE, self.config.fleet.stale_after_s)
         return Response.json(body, 200 if report.ok else 503)
+
+    def _record_engine(self, lb: LoadedBundle) -> None:
+        for figures in (lb.engine_choice.figures if lb.engine_choice else []):
+            if figures.ms_p50 is not None:
+                self.m_engine_ms.set(figures.ms_p50, garment=lb.garment_id, engine=figures.engine)
+                self.m_engine_err.set(figures.err_levels or 0.0, garment=lb.garment_id, engine=figures.engine)
+        for engine in ENGINES:
+            self.m_engine.set(1.0 if engine == lb.engine else 0.0, garment=lb.garment_id, engine=engine)
+
+    def engine_info(self) -> dict:
+        """Each garment's engine and, under engine: auto, the activation benchmark that chose it."""
+        return {g: {"engine": b.engine, "choice": b.engine_choice.to_json() if b.engine_choice else None}
+                for g, b in sorted(self._bundles.items())}
 
     def scale_info(self) -> dict:
         """Both pitches: the panel's (config) and each bundle's (what its model learned at), and the ratio the

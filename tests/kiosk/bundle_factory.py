@@ -7,11 +7,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import onnx
-from onnx import TensorProto, helper
+from onnx import TensorProto, helper, numpy_helper
 
 from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
 from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.contract.graph import OUTPUT_CHANNELS
 from kiosk.contract.sketch import rasterize
 
 
@@ -40,6 +41,41 @@ def tiny_graph(path: Path, outputs: list[str], *, poison: bool = False) -> Path:
                   helper.make_node("Mul", ["t3", "mask"], ["tactile"])]
         outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
     model = helper.make_model(helper.make_graph(nodes, "tiny", inputs, outs),
+                              opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def conv_graph(path: Path, outputs: list[str], *, poison: bool = False, seed: int = 7) -> Path:
+    """A small real encoder-decoder (Conv stride 2 -> Relu -> ConvTranspose stride 2 -> Tanh, masked) with seeded
+    random weights: enough arithmetic that two engines' float results differ, as they do on a real bundle."""
+    rng = np.random.default_rng(seed)
+    dims = [1, 1, "H", "W"]
+    inputs = [helper.make_tensor_value_info("sketch", TensorProto.FLOAT, dims),
+              helper.make_tensor_value_info("mask", TensorProto.FLOAT, dims)]
+    inits = [numpy_helper.from_array(rng.normal(0, 0.5, (16, 2, 3, 3)).astype(np.float32), "w1"),
+             numpy_helper.from_array(rng.normal(0, 0.1, (16,)).astype(np.float32), "b1")]
+    nodes = []
+    if poison:  # NaN added at the outputs (a Relu inside may legally map NaN to 0 in one engine and not another)
+        inits.append(numpy_helper.from_array(np.array(0.0, np.float32), "z"))
+        nodes.append(helper.make_node("Div", ["z", "z"], ["nan"]))
+    nodes += [helper.make_node("Concat", ["sketch", "mask"], ["x"], axis=1),
+              helper.make_node("Conv", ["x", "w1", "b1"], ["c1"], pads=[1, 1, 1, 1], strides=[2, 2]),
+              helper.make_node("Relu", ["c1"], ["r1"])]
+    outs = []
+    for name in outputs:
+        ch = OUTPUT_CHANNELS[name]
+        inits.append(numpy_helper.from_array(rng.normal(0, 0.3, (16, ch, 4, 4)).astype(np.float32), f"w_{name}"))
+        nodes += [helper.make_node("ConvTranspose", ["r1", f"w_{name}"], [f"d_{name}"], strides=[2, 2],
+                                   pads=[1, 1, 1, 1]),
+                  helper.make_node("Tanh", [f"d_{name}"], [f"t_{name}"])]
+        if poison:
+            nodes.append(helper.make_node("Add", [f"t_{name}", "nan"], [f"t_{name}_p"]))
+        nodes.append(helper.make_node("Mul", [f"t_{name}_p" if poison else f"t_{name}", "mask"], [name]))
+        outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, [1, ch, "H", "W"]))
+    model = helper.make_model(helper.make_graph(nodes, "conv", inputs, outs, initializer=inits),
                               opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     onnx.checker.check_model(model)
@@ -78,7 +114,7 @@ def base_manifest(**overrides) -> Manifest:
 
 
 def make_bundle(tmp: Path, *, name: str = "garment.vtb", key_name: str = "operator", poison: bool = False,
-                sign: bool = True, manifest: Manifest | None = None) -> tuple[Path, Path]:
+                sign: bool = True, manifest: Manifest | None = None, graph=tiny_graph) -> tuple[Path, Path]:
     """Write a signed bundle; return (bundle path, trusted-keys folder)."""
     keys = tmp / "keys"
     if not (keys / f"{key_name}.key").exists():
@@ -87,7 +123,7 @@ def make_bundle(tmp: Path, *, name: str = "garment.vtb", key_name: str = "operat
     (work / "graphs").mkdir(parents=True, exist_ok=True)
     sources = {f"assets/{k}.png": p for k, p in make_assets(work / "assets").items()}
     for kind, outs in (("full", ["visual", "tactile"]), ("tactile", ["tactile"]), ("visual", ["visual"])):
-        sources[f"graphs/{kind}.onnx"] = tiny_graph(work / "graphs" / f"{kind}.onnx", outs, poison=poison)
+        sources[f"graphs/{kind}.onnx"] = graph(work / "graphs" / f"{kind}.onnx", outs, poison=poison)
     key = load_private_key(keys / f"{key_name}.key") if sign else None
     out = tmp / name
     write_bundle(out, manifest or base_manifest(), sources, signing_key=key)

@@ -174,3 +174,13 @@ def test_panel_stated_in_mm_overrides_the_table():
 def test_bad_panels_name_the_key(panel, message):
     with pytest.raises(ConfigError, match=message):
         config_from_mapping({"bundles": ["g.vtb"], "panel": panel})
+
+
+def test_inference_engine_type_is_checked():
+    assert config_from_mapping({"inference": {"engine": {"type": "auto"}}, "bundles": ["x.vtb"]}).inference.engine \
+        .type == "auto"
+    assert KioskConfig(bundles=(Path("x.vtb"),)).inference.engine.type == "onnxruntime"
+    with pytest.raises(ConfigError, match="inference.engine.type"):
+        config_from_mapping({"inference": {"engine": {"type": "tensorrt"}}, "bundles": ["x.vtb"]})
+    with pytest.raises(ConfigError, match="inference.engine.auto_runs"):
+        config_from_mapping({"inference": {"engine": {"type": "auto", "auto_runs": 0}}, "bundles": ["x.vtb"]})

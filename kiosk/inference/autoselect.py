@@ -1,0 +1,152 @@
+"""`engine: auto`: time every installed engine on the bundle once, at activation, and keep the fastest that agrees.
+
+Speed order between engines depends on the CPU (ISA, cache) and on the graph, so it is measured where it matters:
+on this kiosk, on this bundle's graphs, on its own reference sketch. ONNX Runtime is the reference (the exporter
+states the bundle's error with it); another engine is eligible only if its outputs differ from ONNX Runtime's by
+at most the bundle's stated error bound: mean absolute difference in 8-bit levels (127.5 per unit of the tanh
+outputs) at most the bundle's `errors.<precision>.friction_mae_levels`, or `DEFAULT_BOUND_LEVELS` for a bundle
+that states none. An engine that fails to load or run is recorded with its reason and skipped.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from kiosk.bundle.archive import Bundle
+from kiosk.contract.graph import feeds
+from kiosk.contract.sketch import letterbox, network_input, object_mask
+from kiosk.inference.backends import available, open_graph
+from kiosk.inference.cpu import describe
+
+DEFAULT_BOUND_LEVELS = 0.5
+LEVELS_PER_UNIT = 127.5
+
+
+@dataclass(frozen=True)
+class EngineFigures:
+    engine: str
+    ms_p50: float | None = None           # summed over the bundle's graphs, median of the timed runs
+    err_levels: float | None = None       # worst graph/output mean |diff| vs ONNX Runtime, 8-bit levels
+    eligible: bool = False
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class EngineChoice:
+    engine: str
+    bound_levels: float
+    grids: dict[str, list[int]]
+    runs: int
+    figures: list[EngineFigures] = field(default_factory=list)
+    cpu: dict = field(default_factory=dict)  # kiosk.inference.cpu.describe(): the figures hold on this CPU only
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def error_bound(bundle: Bundle) -> float:
+    """The tightest friction MAE (levels) the bundle states for its graphs: `<kind>_friction_mae_levels` (what the
+    exporter writes) or `friction_mae_levels` under each graph's precision."""
+    m = bundle.manifest
+    bounds = []
+    for kind, g in m.graphs.items():
+        errs = m.errors.get(g.precision, {})
+        bounds.append(errs.get(f"{kind}_friction_mae_levels", errs.get("friction_mae_levels")))
+    bounds = [float(b) for b in bounds if b is not None and np.isfinite(b) and b > 0]
+    return min(bounds) if bounds else DEFAULT_BOUND_LEVELS
+
+
+def bench_grid(bundle: Bundle, kind: str, max_side: int) -> tuple[int, int]:
+    """The largest declared size within max_side (what the kiosk will serve), else the smallest declared."""
+    sizes = [(int(w), int(h)) for w, h in bundle.manifest.graph(kind).sizes]
+    fit = [s for s in sizes if max(s) <= max_side]
+    return max(fit, key=lambda s: s[0] * s[1]) if fit else min(sizes, key=lambda s: s[0] * s[1])
+
+
+def _feed(bundle: Bundle, grid: tuple[int, int]) -> dict[str, np.ndarray]:
+    w, h = grid
+    if "sketch" in bundle.manifest.assets:
+        fitted, _ = letterbox(bundle.asset("sketch"), (w, h))
+        x = network_input(fitted, object_mask(fitted))
+        return feeds(x.sketch, x.mask)
+    return feeds(np.zeros((1, 1, h, w), np.float32), np.ones((1, 1, h, w), np.float32))
+
+
+def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None = None, max_side: int = 512,
+                  runs: int = 3, engines: tuple[str, ...] | None = None) -> EngineChoice:
+    """Benchmark the engines on every graph of the bundle and pick one (ONNX Runtime if nothing else qualifies)."""
+    engines = tuple(engines or available())
+    bound = error_bound(bundle)
+    kinds = list(bundle.manifest.graphs)
+    grids = {k: bench_grid(bundle, k, max_side) for k in kinds}
+    inputs = {k: _feed(bundle, grids[k]) for k in kinds}
+    reference: dict[str, list[np.ndarray]] = {}
+    figures: list[EngineFigures] = []
+    order = ["onnxruntime"] + [e for e in engines if e != "onnxruntime"]
+    for engine in order:
+        total: list[float] = [0.0] * runs
+        worst = 0.0
+        try:
+            for kind in kinds:
+                spec = bundle.manifest.graph(kind)
+                runner = open_graph(engine, bundle.graph_path(kind), threads=threads, providers=providers)
+                outs = runner.run(spec.outputs, inputs[kind])  # warm-up: first-shape allocation is not timed
+                for i in range(runs):
+                    t0 = time.perf_counter()
+                    runner.run(spec.outputs, inputs[kind])
+                    total[i] += 1e3 * (time.perf_counter() - t0)
+                if not all(np.isfinite(o).all() for o in outs):
+                    raise ValueError("non-finite output")
+                if engine == "onnxruntime":
+                    reference[kind] = outs
+                else:
+                    worst = max(worst, *(LEVELS_PER_UNIT * float(np.mean(np.abs(o - r)))
+                                         for o, r in zip(outs, reference[kind])))
+        except Exception as exc:  # noqa: BLE001 - any engine failure makes it ineligible, with its reason
+            if engine == "onnxruntime":
+                raise
+            figures.append(EngineFigures(engine, reason=f"failed: {str(exc).splitlines()[0][:200]}"))
+            continue
+        ok = worst <= bound
+        figures.append(EngineFigures(engine, round(statistics.median(total), 3), float(f"{worst:.4g}"), ok,
+                                     "" if ok else f"error {worst:.3g} levels exceeds the bound {bound:g}"))
+    best = min((f for f in figures if f.eligible), key=lambda f: f.ms_p50)
+    return EngineChoice(best.engine, bound, {k: list(g) for k, g in grids.items()}, runs, figures, describe())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m kiosk.inference.autoselect BUNDLE`: what `engine: auto` would pick here, as JSON."""
+    import argparse
+    import json
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from kiosk.bundle.archive import open_bundle
+    from kiosk.bundle.signature import load_trusted_keys
+    from kiosk.contract.errors import KioskError
+
+    ap = argparse.ArgumentParser(prog="python -m kiosk.inference.autoselect", description=main.__doc__)
+    ap.add_argument("bundle", type=Path)
+    ap.add_argument("--trusted-keys", type=Path, help="folder of trusted public keys (default: accept unsigned)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--max-side", type=int, default=512)
+    a = ap.parse_args(argv)
+    try:
+        with tempfile.TemporaryDirectory() as work:
+            trusted = load_trusted_keys(a.trusted_keys) if a.trusted_keys else None
+            b = open_bundle(a.bundle, trusted, workdir=Path(work), allow_unsigned=trusted is None)
+            choice = choose_engine(b, threads=a.threads, runs=a.runs, max_side=a.max_side)
+    except (KioskError, OSError) as exc:
+        print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    print(json.dumps(choice.to_json(), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
