@@ -43,7 +43,7 @@ from typing import Any
 
 import yaml
 
-from kiosk.contract import yamlload
+from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 
 # A participant code is a code, never a name: short, no spaces, nothing that reads like personal data.
@@ -437,7 +437,7 @@ def load_study_config(path: str | Path) -> StudyConfig:
     except OSError as exc:
         raise StudyConfigError(f"cannot read study config {path}: {exc.strerror or exc}") from None
     try:
-        doc = yamlload.safe_load(raw)
+        doc = loader.safe_load(raw)
     except yaml.YAMLError as exc:
-        raise StudyConfigError(f"{path}: not valid YAML ({yamlload.one_line(str(exc))})") from None
+        raise StudyConfigError(f"{path}: not valid YAML ({loader.one_line(str(exc))})") from None
     return study_from_mapping(doc, path.resolve().parent, source_sha256=hashlib.sha256(raw).hexdigest())
