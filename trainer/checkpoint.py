@@ -53,6 +53,21 @@ def read_checkpoint(run_dir: Path, which: str = "best") -> dict:
     return ck
 
 
+def bake_parametrizations(net: nn.Module) -> nn.Module:
+    """Replace weight parametrizations (GauGAN's spectral norm) by the weights they compute, in place.
+
+    A loaded generator is only run, never trained: in eval mode spectral norm still recomputes sigma on every call
+    (an `aten::vdot` ONNX cannot export); baked weights give the same outputs.
+    """
+    from torch.nn.utils import parametrize
+
+    for module in net.modules():
+        if parametrize.is_parametrized(module):
+            for name in list(module.parametrizations.keys()):
+                parametrize.remove_parametrizations(module, name, leave_parametrized=True)
+    return net
+
+
 def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]:
     """The trained generator in eval mode, and info: method, step, model_config, generator_class, friction_scale,
     info (perceptual backbone etc.), path. Raises CheckpointError on anything missing or mismatched."""
@@ -68,6 +83,7 @@ def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]
     except (RuntimeError, TypeError, KeyError) as exc:
         raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
     net.eval()
+    bake_parametrizations(net)
     info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
                                    "garment", "crop", "pixel_pitch_mm")}
     info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")

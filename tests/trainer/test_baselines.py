@@ -114,3 +114,18 @@ def test_short_train_through_the_cli_leaves_a_self_describing_checkpoint(garment
     crop = info["crop"]
     s = torch.rand(1, 1, crop, crop)
     assert net(s, torch.ones_like(s), "tactile").shape == (1, 2, crop, crop)
+
+
+def test_baked_spectral_norm_gives_the_same_outputs_and_nothing_left_to_recompute():
+    from torch.nn.utils import parametrize
+
+    from trainer.checkpoint import bake_parametrizations
+    from trainer.models.spade_generator import SpadeGenerator
+    g = SpadeGenerator().eval()
+    s, m = torch.rand(1, 1, 64, 64), torch.ones(1, 1, 64, 64)
+    with torch.no_grad():
+        before = g(s, m)
+        bake_parametrizations(g)
+        after = g(s, m)
+    assert not any(parametrize.is_parametrized(x) for x in g.modules())
+    assert all(torch.equal(a, b) for a, b in zip(before, after))
