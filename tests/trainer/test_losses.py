@@ -181,7 +181,7 @@ def test_clip_head_has_optimizer_and_learns(garment, tmp_path):
 
 
 def test_no_clip_path_skips_with_one_log_line(garment, caplog):
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.INFO):
         m, _ = _setup(garment)
     assert not m.clip.active and m.info["clip_d"] == "skipped"
     assert sum("clip-d" in r.message for r in caplog.records) == 1

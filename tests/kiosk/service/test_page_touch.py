@@ -206,7 +206,7 @@ def test_a_second_finger_cancels_the_stroke_and_taps_leave_no_ink(touch, daemon)
     assert len(js(page, "window.vtkiosk.state.strokes")) == 2
     n = js(page, "window.vtkiosk.stats.finals.length")
     page.tap("#undo")
-    wait_settled(page, n)
+    page.wait_for_function("window.vtkiosk.state.strokes.length === 1", timeout=30000)
     strokes = js(page, "window.vtkiosk.state.strokes")
     assert len(strokes) == 1 and strokes[0][0] == [400, 250]
     n = js(page, "window.vtkiosk.stats.finals.length")
