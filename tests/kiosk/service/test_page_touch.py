@@ -170,50 +170,6 @@ def test_a_touch_stroke_draws_then_feeling_changes_nothing(touch, daemon):
     assert 'vtkiosk_touches_total{mode="feel"}' in metrics and "vtkiosk_first_feel_seconds_count" in metrics
 
 
-def test_a_second_finger_cancels_the_stroke_and_taps_leave_no_ink(touch, daemon):
-    page, fingers = touch
-    blank = canvas_digest(page)
-    requests0 = js(page, "window.vtkiosk.stats.requests")
-    finals0 = js(page, "window.vtkiosk.stats.finals.length")
-    # A tap: no dot, no request.
-    fingers.tap(500, 300)
-    fingers.tap(700, 500)
-    page.wait_for_timeout(200)
-    assert js(page, "window.vtkiosk.state.strokes") == [] and js(page, "window.vtkiosk.stats.taps") == 2
-    assert canvas_digest(page) == blank and js(page, "window.vtkiosk.stats.requests") == requests0
-    # A stroke under way, then a second finger (a palm, a pinch): the stroke is dropped, and neither finger
-    # draws until both are up.
-    fingers.slide([(400, 250), (800, 250)], seconds=0.3, end=False)
-    page.wait_for_function("window.vtkiosk.state.current && window.vtkiosk.state.current.length > 5")
-    fingers.send("touchStart", {1: (800, 250), 2: (600, 600)})
-    for k in range(1, 11):
-        fingers.send("touchMove", {1: (800, 250 + 30 * k), 2: (600 - 20 * k, 600)})
-        page.wait_for_timeout(16)
-    fingers.send("touchEnd", {})
-    page.wait_for_timeout(300)
-    assert js(page, "window.vtkiosk.stats.cancelled") == 1
-    assert js(page, "window.vtkiosk.state.strokes") == [] and js(page, "window.vtkiosk.state.current") is None
-    assert js(page, "window.vtkiosk.stats.finals.length") == finals0  # the dropped stroke was never rendered
-    page.wait_for_function("window.vtkiosk.state.visual === null")  # a preview of it, if one came, is gone
-    assert canvas_digest(page) == blank
-    # Drawing goes on afterwards, one stroke at a time; Undo and Clear work per stroke.
-    n = js(page, "window.vtkiosk.stats.finals.length")
-    fingers.slide([(400, 250), (800, 250)], seconds=0.3)
-    wait_settled(page, n)
-    n = js(page, "window.vtkiosk.stats.finals.length")
-    fingers.slide([(800, 250), (800, 600)], seconds=0.3)
-    wait_settled(page, n)
-    assert len(js(page, "window.vtkiosk.state.strokes")) == 2
-    n = js(page, "window.vtkiosk.stats.finals.length")
-    page.tap("#undo")
-    page.wait_for_function("window.vtkiosk.state.strokes.length === 1", timeout=30000)
-    strokes = js(page, "window.vtkiosk.state.strokes")
-    assert len(strokes) == 1 and strokes[0][0] == [400, 250]
-    n = js(page, "window.vtkiosk.stats.finals.length")
-    page.tap("#clear")
-    assert wait_settled(page, n)["status"] == "empty" and js(page, "window.vtkiosk.state.strokes") == []
-
-
 def test_the_catalogue_switches_garment_and_names_the_fabric(touch, daemon):
     page, fingers = touch
     thumbs = page.eval_on_selector_all("#garments img", "els => els.map(e => [e.src, e.naturalWidth])")
