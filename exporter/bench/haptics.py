@@ -57,7 +57,8 @@ TRUTH_UPSAMPLE = 3             # the true friction texture is mapped from the tr
 TRUTH_PITCH_MM = PITCH_MM / TRUTH_UPSAMPLE
 MAX_TEXTURE_PERIOD_MM = 8.0    # texture is what varies within a fingertip's contact; longer is garment shape
 TARGET_STEPS = 4.0
-MODES = {"today": (False, "calibrated"), "paper": (False, "quantile"), "new": (True, "perceptual")}
+# mode: (physical planner, friction mapping, supersample of the friction map; 1 = how earlier kiosks mapped)
+MODES = {"today": (False, "calibrated", 1), "paper": (False, "quantile", 1), "new": (True, "perceptual", SUPERSAMPLE)}
 
 
 class HapticsBenchError(ExportError):
@@ -169,7 +170,7 @@ class Case:
 
 def run_case(params: FabricParams, cal: dict, panel_mm: float, size: float, mode: str, seed: int,
              refine_grid_only: bool = True) -> Case:
-    physical, normalization = MODES[mode]
+    physical, normalization, supersample = MODES[mode]
     bundle = TruthBundle(f"truth-{params.name}", PITCH_MM)
     planner = Planner(max_resolution=MAX_RESOLUTION, panel_pitch_mm=panel_mm if physical else None)
     pts, rect = outline(panel_mm, size)
@@ -181,7 +182,8 @@ def run_case(params: FabricParams, cal: dict, panel_mm: float, size: float, mode
     gx, gy = truth_gradients(params, pp.mask, PITCH_MM, seed)
     tactile = np.stack([gx, gy])[None]
     tex = friction_texture("main", tactile, pp.region, pp.clip, scale=cal["scale"], normalization=normalization,
-                           constants=cal["constants"] if normalization == "perceptual" else None)
+                           constants=cal["constants"] if normalization == "perceptual" else None,
+                           supersample=supersample)
     frame = compose([tex] if tex is not None else [], SCREEN)
     win = plain_window(rect)
     # The same cloth on the grid: screen -> grid is (x - region x) * grid / region size.
