@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from exporter.bench.haptics import (MAX_TEXTURE_PERIOD_MM, PITCH_MM, TRUTH_PITCH_MM, calibrate, contrast_row,
-                                    fabric_params, period_row, run_case)
+from exporter.bench.haptics import (FLAT_NOISES, MAX_TEXTURE_PERIOD_MM, PITCH_MM, TRUTH_PITCH_MM, calibrate,
+                                    contrast_row, distinguishability, fabric_params, period_row, run_case)
 from trainer.data.synth_fabrics import FabricParams
 
 
@@ -57,6 +57,18 @@ def test_flat_garment_stays_at_natural_friction(corduroy):
     flat = next(f for f in fabric_params(0) if f.name == "flat")
     row = contrast_row(run_case(flat, calibrate(flat, PITCH_MM, 0), 0.17, 1.0, "new", 0))
     assert row["p95_steps"] <= 1.0 and np.isfinite(row["iqr_steps"])
+
+
+def test_every_fabric_spans_four_steps_and_every_pair_is_told_apart():
+    # The default garments on the default panel: each synthetic fabric's plain texture spans >= 4 just-noticeable
+    # steps with the new mapping, and every pair of fabrics is further apart than two regions of one fabric.
+    cases = [run_case(p, calibrate(p, PITCH_MM, 0), 0.17, 1.0, "new", 0) for p in fabric_params(0)
+             if p.name not in FLAT_NOISES]
+    steps = {c.fabric: contrast_row(c)["iqr_steps"] for c in cases}
+    assert min(steps.values()) >= 4.0, steps
+    d = distinguishability(cases)
+    assert d["all_separated"], [p for p in d["pairs"] if not p["separated"]]
+    assert all(d["confusion"][i][i] == 2 for i in range(len(cases)))
 
 
 @pytest.mark.parametrize("args, message", [
