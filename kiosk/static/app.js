@@ -407,7 +407,9 @@ function onPress(el, fn) {
   el.addEventListener("click", (ev) => { if (ev.detail === 0) fn(); });
 }
 // Bubble phase, after the button's own handler: a press released elsewhere (or taken by a scroll) is forgotten.
-for (const type of ["pointerup", "pointercancel"]) document.addEventListener(type, (ev) => presses.delete(ev.pointerId));
+for (const type of ["pointerup", "pointercancel"]) {
+  document.addEventListener(type, (ev) => presses.delete(ev.pointerId));
+}
 
 for (const b of $("modes").children) onPress(b, () => setMode(b.dataset.mode));
 onPress($("undo"), () => {
