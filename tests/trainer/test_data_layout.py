@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from tests.conftest import write_real_layout
 from trainer.data.check import check_dataset, format_reports
 from trainer.data.layout import layout_problems, name_problem
-from trainer.data.touchclothing import FOLDER_RE, parse_folder_name
+from trainer.data.touchclothing import FOLDER_RE, DatasetError, parse_folder_name
 
 LAYOUT_SUBS = ("trainS", "trainI", "trainM", "trainT", "valT", "testT")
 
@@ -99,7 +99,7 @@ def test_missing_val_touches_is_a_warning_with_a_reason(garment):
 
 def test_a_dataset_with_no_garment_folder_says_where_the_layout_is(tmp_path):
     (tmp_path / "notes").mkdir()
-    with pytest.raises(Exception, match="no garment folders .* docs/real-garments.md"):
+    with pytest.raises(DatasetError, match="no garment folders .* docs/real-garments.md"):
         check_dataset(tmp_path)
 
 

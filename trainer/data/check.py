@@ -67,8 +67,8 @@ def garment_folders(data_dir: Path) -> list[Path]:
     data_dir = Path(data_dir)
     if not data_dir.is_dir():
         raise DatasetError(f"{data_dir}: no such dataset folder")
-    if FOLDER_RE.match(data_dir.name) or looks_like_garment(data_dir) and not any(
-            FOLDER_RE.match(p.name) for p in data_dir.iterdir()):
+    if FOLDER_RE.match(data_dir.name) or (looks_like_garment(data_dir) and not any(
+            FOLDER_RE.match(p.name) for p in data_dir.iterdir())):
         return [data_dir]
     found = sorted(p for p in data_dir.iterdir() if p.is_dir() and (FOLDER_RE.match(p.name) or looks_like_garment(p)))
     if not found:
