@@ -17,7 +17,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.slow
 def test_demo_builds_a_signed_bundle_then_starts_from_cache(tmp_path_factory, tmp_path):
-    bundle, trusted, _ = demo_build(tmp_path_factory)
+    bundle, trusted, out = demo_build(tmp_path_factory)
+    if "reusing the demo bundle" not in out:        # a kept build (VTKIOSK_TEST_DEMO_DIR) shows no stages
+        stages = [line for line in out.splitlines() if line.startswith("demo: [")]
+        assert [s[:11] for s in stages if s.endswith("...")] == ["demo: [1/3]", "demo: [2/3]", "demo: [3/3]"], out
+        assert any(line.startswith("demo:   | ") and "step 2/2" in line for line in out.splitlines()), out
     workdir = bundle.parents[2]
     key = workdir / "keys" / "demo.key"
     assert stat.S_IMODE(key.stat().st_mode) == 0o600

@@ -77,15 +77,25 @@ def cache_key(seed: int, steps: int | None) -> str:
 
 
 def _run(cmd: list[str], log: Path, what: str) -> None:
+    """Run one build stage; its output goes to the log and, indented, to the terminal (the trainer's periodic
+    progress lines and the exporter's one line per step), so a slow stage on a busy machine never looks hung."""
     t0 = time.perf_counter()
     print(f"demo: {what} ...", flush=True)
     with open(log, "ab") as out:
         out.write(("\n$ " + " ".join(cmd) + "\n").encode())
         out.flush()
-        proc = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
-    if proc.returncode != 0:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            out.write(line)
+            out.flush()
+            text = line.decode(errors="replace").rstrip()
+            if text:
+                print(f"demo:   | {text}", flush=True)
+        rc = proc.wait()
+    if rc != 0:
         tail = log.read_text(errors="replace").strip().splitlines()[-5:]
-        raise DemoError(f"{what} failed (exit {proc.returncode}); see {log}:\n  " + "\n  ".join(tail))
+        raise DemoError(f"{what} failed (exit {rc}); see {log}:\n  " + "\n  ".join(tail))
     print(f"demo: {what} done in {time.perf_counter() - t0:.0f} s", flush=True)
 
 
@@ -124,16 +134,18 @@ def build_bundle(workdir: Path, *, seed: int = 0, steps: int | None = None, rebu
     t0 = time.perf_counter()
     print(f"demo: building a demo bundle (cache key {key}); log in {log}")
     _run(py + ["data", "synth", "--out", str(build / "data"), "--garments", "1", "--seed", str(seed),
-               "--frame", f"{FRAME[0]}x{FRAME[1]}", "--no-progress"], log, "synthesising a garment")
-    train = py + ["train", "--data", str(build / "data"), "--preset", "demo", "--out", str(build / "run")]
+               "--frame", f"{FRAME[0]}x{FRAME[1]}", "--no-progress"], log, "[1/3] synthesising a garment")
+    # progress on: not a terminal here, so the trainer prints a plain line (step, losses, time left) every 30 s
+    train = py + ["train", "--data", str(build / "data"), "--preset", "demo", "--out", str(build / "run"),
+                  "--set", "train.progress=true"]
     if steps is not None:
         train += ["--steps", str(steps)]
-    _run(train, log, "training a demo-quality model (preset demo)")
+    _run(train, log, "[2/3] training a demo-quality model (preset demo)")
     # int8 at the serving sizes; the demo model is barely trained, so its int8 friction error bound is relaxed
     # (the export still measures it and records it in the manifest).
     _run(py + ["export", "--run", str(build / "run"), "--out", str(build / "demo.vtb"), "--precision", "int8",
                "--sizes", SIZES, "--sign-key", str(signing_key), "--max-friction-mae", "8",
-               "--display-name", "Demo denim shorts"], log, "exporting a signed int8 bundle")
+               "--display-name", "Demo denim shorts"], log, "[3/3] exporting a signed int8 bundle")
     folder.mkdir(parents=True, exist_ok=True)
     shutil.move(str(build / "demo.vtb"), bundle)
     (folder / "build.log").write_bytes(log.read_bytes())

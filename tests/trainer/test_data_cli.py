@@ -53,7 +53,7 @@ def test_check_reports_broken_folder_and_fails(tmp_path):
         f.unlink()
     proc = vtk("data", "check", tmp_path)
     assert proc.returncode == 1
-    assert "FAIL" in proc.stdout and "trainM/ must hold exactly one image" in proc.stdout
+    assert "FAIL" in proc.stdout and "trainM/: must hold exactly one image; found none" in proc.stdout
 
 
 @pytest.mark.parametrize("args, message", [

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.data.touchclothing import SPLITS, DatasetError, Garment, find_garments, friction_scale, load_garment, \
+from trainer.data.layout import layout_problems, looks_like_garment
+from trainer.data.touchclothing import FOLDER_RE, SPLITS, DatasetError, Garment, friction_scale, load_garment, \
     valid_centres
 
 
@@ -15,6 +16,7 @@ class GarmentReport:
     name: str
     ok: bool
     error: str = ""
+    problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     material: str = ""
     padded: int = 0
@@ -55,21 +57,43 @@ def check_garment(g: Garment) -> GarmentReport:
             r.warnings.append(f"99th percentile slope {r.slope_p99:.2f} is implausibly steep (units?)")
     if g.touches.get("train"):
         r.scale = friction_scale(g)
-    for split in SPLITS:
-        if g.touches and not g.touches.get(split):
-            r.warnings.append(f"no {split} touches")
     if g.full_tactile is not None and g.full_tactile.gx.shape != g.mask.shape:
         r.warnings.append("full-field tactile shape differs from the mask")
     return r
 
 
+def garment_folders(data_dir: Path) -> list[Path]:
+    """The garment folders in `data_dir` (or `data_dir` itself), including misnamed ones so their names get a fix."""
+    data_dir = Path(data_dir)
+    if not data_dir.is_dir():
+        raise DatasetError(f"{data_dir}: no such dataset folder")
+    if FOLDER_RE.match(data_dir.name) or (looks_like_garment(data_dir) and not any(
+            FOLDER_RE.match(p.name) for p in data_dir.iterdir())):
+        return [data_dir]
+    found = sorted(p for p in data_dir.iterdir() if p.is_dir() and (FOLDER_RE.match(p.name) or looks_like_garment(p)))
+    if not found:
+        raise DatasetError(f"{data_dir}: no garment folders (singleskit_<Material>_padded_<P>_x1) inside; "
+                           "see docs/real-garments.md for the layout")
+    return found
+
+
 def check_dataset(data_dir: Path) -> list[GarmentReport]:
+    """One report per garment folder: every layout problem with its fix, else the loaded garment's summary."""
     reports = []
-    for root in find_garments(Path(data_dir)):
+    for root in garment_folders(data_dir):
+        problems = layout_problems(root)
+        fatal = [str(p) for p in problems if p.fatal]
+        if fatal:
+            reports.append(GarmentReport(name=root.name, ok=False, error=f"{len(fatal)} problem(s), fix them first",
+                                         problems=fatal))
+            continue
         try:
-            reports.append(check_garment(load_garment(root)))
+            report = check_garment(load_garment(root))
         except DatasetError as exc:
             reports.append(GarmentReport(name=root.name, ok=False, error=str(exc)))
+            continue
+        report.warnings[:0] = [str(p) for p in problems]
+        reports.append(report)
     return reports
 
 
@@ -80,6 +104,7 @@ def format_reports(reports: list[GarmentReport]) -> str:
     for r in reports:
         if not r.ok:
             lines.append(f"{r.name:44} {'':>9} {'':>14} {'':>8} {'':>6} {'':>7} {'':>8} {'':>4}  FAIL: {r.error}")
+            lines += [f"    problem: {p}" for p in r.problems]
             continue
         t = r.touches
         status = "ok" if not r.warnings else f"{len(r.warnings)} warning(s)"

@@ -47,10 +47,11 @@ def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
 
 
 def make_study_bundles(root: Path, conditions: list[str], garments: list[str], *,
-                       drop_asset: tuple[str, str, str] | None = None) -> Path:
+                       drop_asset: tuple[str, str, str] | None = None, single_branch: tuple[str, ...] = ()) -> Path:
     """Write root/bundles/<condition>/<garment>.vtb for every pair; return the trusted-keys folder.
 
     drop_asset=(condition, garment, asset) leaves that reference asset out of that one bundle (a bad-input test).
+    single_branch: conditions whose bundles carry only the full graph (model.branches 1), like the paper's baselines.
     """
     keys = root / "keys"
     if not (keys / "operator.key").exists():
@@ -70,11 +71,15 @@ def make_study_bundles(root: Path, conditions: list[str], garments: list[str], *
         for garment in garments:
             names = {"sketch": "assets/sketch.png", "mask": "assets/mask.png", "visual": "assets/visual.png"}
             sources = {**graphs, **assets}
+            extra = {}
+            if cond in single_branch:
+                sources = {k: v for k, v in sources.items() if not k.startswith("graphs/") or k.endswith("full.onnx")}
+                extra = {"branches": 1, "graphs": {"full": base_manifest().graphs["full"]}}
             if drop_asset is not None and drop_asset[:2] == (cond, garment):
                 del names[drop_asset[2]]
                 del sources[f"assets/{drop_asset[2]}.png"]
             manifest = base_manifest(garment_id=garment, display_name=garment, method=cond,
-                                     model_version=f"2026.1-{cond}", assets=names)
+                                     model_version=f"2026.1-{cond}", assets=names, **extra)
             out = root / "bundles" / cond / f"{garment}.vtb"
             out.parent.mkdir(parents=True, exist_ok=True)
             write_bundle(out, manifest, sources, signing_key=key)
