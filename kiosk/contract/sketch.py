@@ -154,7 +154,6 @@ def object_mask(sketch: object, *, max_gap_px: int | None = None) -> np.ndarray:
         return np.zeros(arr.shape, dtype=bool)
     if max_gap_px is None:
         max_gap_px = max(11, int(0.08 * min(arr.shape)))
-    ink_area = int(ink.sum())
     k = 3
     while True:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
@@ -162,13 +161,29 @@ def object_mask(sketch: object, *, max_gap_px: int | None = None) -> np.ndarray:
                                   borderValue=0) > 0
         filled = _fill_from_border(closed) | ink
         region = _largest_component(filled)
-        if region.sum() > 2 * ink_area or k >= max_gap_px:
+        if _encloses(region, ink) or k >= max_gap_px:
             break
         k = min(2 * k + 1, max(max_gap_px, 3))
-    if region.sum() <= 2 * ink_area:
+    if not _encloses(region, ink):
         # The outline never closed: what we have is only lines, not an object.
         return np.zeros(arr.shape, dtype=bool)
     return region
+
+
+_RIM = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+
+
+def _encloses(region: np.ndarray, ink: np.ndarray) -> bool:
+    """Whether `region` is an enclosed area rather than lines: clearly larger than the ink on its rim.
+
+    Only the rim's ink (a 3 px band inside the region's edge) counts, so a garment whose sketch is dense with
+    interior detail (a knit's loops, quilting) still reads as enclosed when the sketch is downsampled, where its
+    lines grow relative to its area; an open stroke is all rim and never passes."""
+    area = int(region.sum())
+    if area == 0:
+        return False
+    inner = cv2.erode(region.astype(np.uint8), _RIM, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    return area > 2 * int((ink & region & ~inner).sum())
 
 
 def network_input(sketch: object, mask: object) -> NetworkInput:

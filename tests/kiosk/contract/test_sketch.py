@@ -103,6 +103,34 @@ def test_object_mask_keeps_largest_component_and_fills_holes():
     assert m[40, 40] and m[20, 20] and not m[15, 95]
 
 
+def _textured_garment(side: int = 400) -> np.ndarray:
+    """A closed outline filled with short marks, like a knit's or a quilt's sketch: more ink inside than on the rim."""
+    a, b = side // 5, 4 * side // 5
+    marks = [[(x, y), (x + 4, y + 1)] for y in range(a + 4, b - 4, 3) for x in range(a + 4, b - 8, 6)]
+    return rasterize([[(a, a), (b, a), (b, b), (a, b), (a, a)], *marks], (side, side), width_px=1)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.9, 0.75, 0.5, 0.3])
+def test_object_mask_of_a_textured_garment_survives_downsampling(scale):
+    """The planner downsamples a garment's reference sketch by area and re-binarises it; interior detail then
+    outweighs the outline's ink, which must not make a closed garment read as 'only lines'."""
+    sketch = _textured_garment()
+    n = round(sketch.shape[0] * scale)
+    small = np.where(cv2.resize(sketch, (n, n), interpolation=cv2.INTER_AREA) < 224, INK, PAPER).astype(np.uint8)
+    m = object_mask(small, max_gap_px=3)
+    if scale < 1:  # the case: the garment's area is less than twice its ink (the old 'only lines' rule)
+        assert m.sum() < 2 * (small == INK).sum()
+    assert m.sum() == pytest.approx((0.6 * n) ** 2, rel=0.1)
+
+
+def test_an_open_stroke_with_texture_is_still_not_an_object():
+    sketch = _textured_garment()
+    sketch[:, :] = PAPER
+    marks = [[(x, 200), (x + 5, 202)] for x in range(80, 320, 9)]
+    line = rasterize([[(80, 80), (320, 80), (320, 320)], *marks], sketch.shape[::-1], width_px=1)
+    assert not object_mask(line, max_gap_px=3).any()
+
+
 def test_object_mask_no_object():
     assert not object_mask(np.full((20, 30), PAPER, np.uint8)).any()
     assert not object_mask(rasterize([[(5, 5), (25, 5)]], (30, 20))).any()  # a line encloses nothing

@@ -61,12 +61,6 @@ def vtk_study(*args: str) -> str:
     return proc.stdout
 
 
-# Known defect this test found (kiosk/inference/scene.py, not fixed here): the planner looks for the garment's
-# outline on a coarse raster of the reference sketch, resampled by area and re-binarised; the synthetic knit jacket's
-# thin reference outline breaks up there, no closed outline is found and its trial cannot be rendered ("no friction
-# map for left: empty; right: empty"). The bundle's own reference mask would bound it. Strict: passes -> fails.
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="planner: no closed outline in the knit jacket's resampled reference sketch")
 def test_the_haptic_example_config_runs_a_full_session_on_trained_bundles(site, tmp_path):
     cfg = load_study_config(site)
     assert cfg.comparisons == ("pix2pix", "pix2pixhd", "gaugan") and cfg.release == "each_trial"
