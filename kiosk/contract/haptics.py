@@ -311,13 +311,15 @@ def _perceptual(gz: np.ndarray, c: Mapping[str, float]) -> np.ndarray:
     # gz): however the garment was calibrated, a flat one cannot be stretched into texture.
     abs_a = k["steps_per_octave"] / np.log(4.0)
     abs_b = -abs_a * np.log(floor)
+    # Felt (steps > 0) where both lines are above 0; decided on gz itself, before the log's rounding (about 1e-6
+    # in log gz in float32), so float32 and float64 disagree only within float32's rounding of the threshold slope.
+    felt = gz > dt(max(floor, k["gz_low"] * np.exp(-k["steps_low"] / rel_a)))
     lg = np.log(np.maximum(gz, dt(floor * 1e-12), out=gz), out=gz)  # +Inf (an overflowed square) stays +Inf
     absolute = lg * dt(abs_a)
     absolute += dt(abs_b)
     steps = np.multiply(lg, dt(rel_a), out=lg)
     steps += dt(rel_b)
     np.minimum(steps, absolute, out=steps)
-    felt = steps > 0.0
     # Level = threshold * jnd_ratio^steps; beyond `top` steps it exceeds 255 and saturates, so clip there first.
     top = np.log(255.0 / k["threshold_level"]) / np.log(k["jnd_ratio"])
     np.clip(steps, 0.0, dt(max(top, 0.0)), out=steps)
