@@ -37,6 +37,9 @@ SUPERSAMPLE = 2
 # keeps gz_high >= 1.01 gz_low) give at most steps_span / log(1.01), about 700 at the default span.
 MAX_FLOAT32_STEPS_PER_LOG = 1000.0
 
+# Largest |slope| the map keeps, per working dtype: squares (and sums of two) stay finite.
+SLOPE_LIMIT = {"float32": 1e18, "float64": 1e153}
+
 Normalization = Literal["calibrated", "quantile", "perceptual"]
 NORMALIZATIONS: tuple[str, ...] = ("calibrated", "quantile", "perceptual")
 Precision = Literal["float32", "float64"]
@@ -355,7 +358,8 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     of the two grids per axis, as kiosks did before. Quantised: 0 = natural friction, 255 = maximum added friction.
 
     `precision`: float32 (the kiosk's) computes every pass in float32, in place; float64 is the reference it is
-    tested against (docs/haptics.md states the largest level difference between them).
+    tested against (docs/haptics.md states the largest level difference between them). The quantile mapping, and
+    constants that float32 cannot carry precisely (see `_working_dtype`), are computed in float64 either way.
 
     Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
 
@@ -380,8 +384,14 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
             raise InputError(f"quantile must be in (0, 1]; got {quantile}")
     else:
         raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
-    dt = _working_dtype(dt, normalization, scale, constants)
+    saturation = _saturation_gz(normalization, scale, constants)
+    dt = _working_dtype(dt, normalization, saturation, constants)
     ax, ay = sanitize_gradients(gx, gy, counter=counter, dtype=dt)
+    # Twice the saturating slope: beyond it every pixel has full friction whatever its neighbours, squares cannot
+    # overflow, and interpolating between huge opposite slopes cannot cancel into rounding noise (or into NaN from
+    # +Inf and -Inf). New arrays: the caller's input is never modified, and every later pass works in place.
+    limit = dt(min(2.0 * np.sqrt(saturation), SLOPE_LIMIT[np.dtype(dt).name]))
+    ax, ay = np.clip(ax, -limit, limit), np.clip(ay, -limit, limit)
     out_size = None
     if size is not None:
         w, h = check_size(size, "device pixels")
@@ -397,7 +407,7 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     gain = 255.0
     if normalization == "calibrated":
         # z' = log10(9 min(gz / scale, 1) + 1); the 1/ln 10 of log10 is applied after the (linear) area average.
-        gz = _squared_slope(ax, ay, gx, gy)
+        gz = _squared_slope(ax, ay)
         with np.errstate(over="ignore"):  # a product beyond the range is +Inf, which saturates below
             factor = dt(9.0 / scale)
             if np.isfinite(factor):
@@ -409,10 +419,10 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
         zp = np.log(gz, out=gz)
         gain = 255.0 / np.log(10.0)
     elif normalization == "perceptual":
-        zp = _perceptual(_squared_slope(ax, ay, gx, gy), constants)
+        zp = _perceptual(_squared_slope(ax, ay), constants)
     else:  # per-frame quantile and min-max: the comparison mapping, always in float64
-        a64, b64 = ax.astype(np.float64), ay.astype(np.float64)
-        g64 = np.minimum(a64 * a64 + b64 * b64, 1e300)
+        with np.errstate(over="ignore"):
+            g64 = np.minimum(ax * ax + ay * ay, 1e300)
         g64 = np.minimum(g64, np.quantile(g64, quantile))
         zp = _min_max(np.log10(9.0 * _min_max(g64) + 1.0)).astype(dt)
     if out_size is not None:
@@ -423,32 +433,40 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     return np.rint(zp, out=zp).astype(np.uint8)
 
 
-def _working_dtype(dt: type, normalization: str, scale: float | None,
-                   constants: Mapping[str, float] | None) -> type:
-    """float64 where the mapping's own constants make float32 imprecise: a calibrated scale whose saturation point
-    is near float32's range limits, or perceptual quartiles so close that a step is a cliff in log(gz)."""
-    if dt is np.float64:
-        return dt
-    if normalization == "calibrated" and not 1e-30 <= float(scale) <= 1e30:
+def _saturation_gz(normalization: str, scale: float | None, constants: Mapping[str, float] | None) -> float:
+    """The gx^2 + gy^2 beyond which the mapping gives full friction (+Inf for the per-frame quantile mapping)."""
+    if normalization == "calibrated":
+        return float(scale)
+    if normalization == "perceptual":
+        k = _check_perceptual(constants)
+        rel_a = k["steps_span"] / np.log(k["gz_high"] / k["gz_low"])
+        abs_a = k["steps_per_octave"] / np.log(4.0)
+        top = max(np.log(255.0 / k["threshold_level"]) / np.log(k["jnd_ratio"]), 0.0)
+        # where both lines (see `_perceptual`) reach the step whose level is 255
+        log_gz = max(np.log(k["gz_low"]) + (top - k["steps_low"]) / rel_a, np.log(k["floor_slope"] ** 2) + top / abs_a)
+        return float(np.exp(min(log_gz, 700.0)))
+    return float("inf")
+
+
+def _working_dtype(dt: type, normalization: str, saturation_gz: float, constants: Mapping[str, float] | None) -> type:
+    """float64 where float32 would be imprecise: the quantile mapping (its min-max stretches a rounding to the full
+    range), a saturation point near float32's range limits, or perceptual quartiles so close that a step is a cliff
+    in log(gz)."""
+    if dt is np.float64 or normalization == "quantile":
         return np.float64
-    if normalization == "perceptual" and constants is not None:
+    if not 1e-30 <= saturation_gz <= 1e30:
+        return np.float64
+    if normalization == "perceptual":
         k = _check_perceptual(constants)
         if k["steps_span"] / np.log(k["gz_high"] / k["gz_low"]) > MAX_FLOAT32_STEPS_PER_LOG:
             return np.float64
     return dt
 
 
-def _squared_slope(ax: np.ndarray, ay: np.ndarray, gx: object, gy: object) -> np.ndarray:
-    """ax^2 + ay^2, in place in `ax` unless it may share memory with the caller's input (never modified)."""
-    with np.errstate(over="ignore"):  # a square beyond the dtype's range is +Inf, which every mapping saturates
-        if np.may_share_memory(ax, gx) or np.may_share_memory(ax, gy):
-            gz = ax * ax
-        else:
-            gz = np.multiply(ax, ax, out=ax)
-        if np.may_share_memory(ay, gx) or np.may_share_memory(ay, gy):
-            gz += ay * ay
-        else:
-            gz += np.multiply(ay, ay, out=ay)
+def _squared_slope(ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """ax^2 + ay^2, in place in `ax` (both are the map's own arrays)."""
+    gz = np.multiply(ax, ax, out=ax)
+    gz += np.multiply(ay, ay, out=ay)
     return gz
 
 
