@@ -37,7 +37,9 @@ SUPERSAMPLE = 2
 # keeps gz_high >= 1.01 gz_low) give at most steps_span / log(1.01), about 700 at the default span.
 MAX_FLOAT32_STEPS_PER_LOG = 1000.0
 
-# Largest |slope| the map keeps, per working dtype: squares (and sums of two) stay finite.
+# Largest |slope| the map keeps, per working dtype (squares, and sums of two, stay finite), and the multiple of a
+# mapping's saturating slope it clips at (see `friction_map`).
+SATURATION_MARGIN = 1e5
 SLOPE_LIMIT = {"float32": 1e18, "float64": 1e153}
 
 Normalization = Literal["calibrated", "quantile", "perceptual"]
@@ -387,10 +389,12 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     saturation = _saturation_gz(normalization, scale, constants)
     dt = _working_dtype(dt, normalization, saturation, constants)
     ax, ay = sanitize_gradients(gx, gy, counter=counter, dtype=dt)
-    # Twice the saturating slope: beyond it every pixel has full friction whatever its neighbours, squares cannot
-    # overflow, and interpolating between huge opposite slopes cannot cancel into rounding noise (or into NaN from
-    # +Inf and -Inf). New arrays: the caller's input is never modified, and every later pass works in place.
-    limit = dt(min(2.0 * np.sqrt(saturation), SLOPE_LIMIT[np.dtype(dt).name]))
+    # Slopes far beyond saturation are clipped before interpolation: squares cannot overflow, and +Inf and -Inf
+    # neighbours cannot interpolate to NaN. SATURATION_MARGIN times the saturating slope keeps every interpolated
+    # value that saturated unclipped saturated (no interpolation weight is below 1 / (2 MAX_SIDE)), and keeps the
+    # float32 cancellation between huge opposite slopes far below a level. New arrays: the caller's input is never
+    # modified, and every later pass works in place.
+    limit = dt(min(SATURATION_MARGIN * np.sqrt(saturation), SLOPE_LIMIT[np.dtype(dt).name]))
     ax, ay = np.clip(ax, -limit, limit), np.clip(ay, -limit, limit)
     out_size = None
     if size is not None:
@@ -454,7 +458,7 @@ def _working_dtype(dt: type, normalization: str, saturation_gz: float, constants
     in log(gz)."""
     if dt is np.float64 or normalization == "quantile":
         return np.float64
-    if not 1e-30 <= saturation_gz <= 1e30:
+    if not 1e-30 <= saturation_gz <= 1e26:  # SATURATION_MARGIN * its root must stay within SLOPE_LIMIT
         return np.float64
     if normalization == "perceptual":
         k = _check_perceptual(constants)
