@@ -319,7 +319,7 @@ def _perceptual(gz: np.ndarray, c: Mapping[str, float]) -> np.ndarray:
     # Felt (steps > 0) where both lines are above 0; decided on gz itself, before the log's rounding (about 1e-6
     # in log gz in float32), so float32 and float64 disagree only within float32's rounding of the threshold slope.
     felt = gz > dt(max(floor, k["gz_low"] * np.exp(-k["steps_low"] / rel_a)))
-    lg = np.log(np.maximum(gz, dt(floor * 1e-12), out=gz), out=gz)  # +Inf (an overflowed square) stays +Inf
+    lg = np.log(np.maximum(gz, dt(max(floor * 1e-12, np.finfo(dt).tiny)), out=gz), out=gz)  # +Inf stays +Inf
     absolute = lg * dt(abs_a)
     absolute += dt(abs_b)
     steps = np.multiply(lg, dt(rel_a), out=lg)
