@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from kiosk.bench.felt import contrast_steps, dominant_period_px, felt_scale
+from exporter.bench import haptics_map
 from exporter.errors import ExportError
 from kiosk.contract.haptics import SUPERSAMPLE, calibrate_scale, friction_map, jnd_steps, perceptual_constants
 from kiosk.inference.render import compose, friction_texture
@@ -532,16 +533,22 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--bundle", type=Path, default=None, help="a real bundle to time the refined plans' graphs with")
     p.add_argument("--runs", type=int, default=5, help="timed runs per grid and per friction map (after one warm-up)")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--map-sweep", action="store_true",
+                   help="only time the friction map at the planner's grid and panel sizes, supersample 1 vs "
+                        f"{SUPERSAMPLE}, with its float32 error (exporter/bench/haptics_map.py)")
+    p.add_argument("--plot", type=Path, default=None, help="PNG of the --map-sweep timings")
     p.add_argument("--picture", type=Path, default=None, help="PNG: truth | today | new at one physical scale")
     return p
 
 
 def main(argv: list[str], prog: str = "vtkiosk bench haptics") -> int:
     args = build_parser(prog).parse_args(argv)
-    if DEFAULT_PANEL_MM not in args.panels or DEFAULT_SIZE not in args.sizes:
-        raise HapticsBenchError(f"--panels must include {DEFAULT_PANEL_MM} and --sizes 1 (the default garment)")
     if args.runs < 1:
         raise HapticsBenchError("--runs must be at least 1")
+    if args.map_sweep:
+        return map_sweep(args)
+    if DEFAULT_PANEL_MM not in args.panels or DEFAULT_SIZE not in args.sizes:
+        raise HapticsBenchError(f"--panels must include {DEFAULT_PANEL_MM} and --sizes 1 (the default garment)")
     if args.bundle is not None and not args.bundle.exists():
         raise HapticsBenchError(f"{args.bundle}: no such bundle")
     result = run_bench(args)
@@ -552,4 +559,22 @@ def main(argv: list[str], prog: str = "vtkiosk bench haptics") -> int:
         print(f"wrote {args.json}")
     if args.picture is not None:
         print(f"wrote {args.picture}")
+    return 0
+
+
+def map_sweep(args) -> int:
+    env = _environment()
+    rows = haptics_map.sweep(args.runs)
+    result = {"environment": env, "runs": args.runs, "threads": 1, "rows": rows,
+              "peak_rss_mib": haptics_map.peak_rss_mib(), "loadavg_end": list(os.getloadavg())}
+    print(f"friction map, {args.runs} runs after a warm-up, 1 thread; {env['cpu']} ({' '.join(env['isa'])}); "
+          f"load {env['loadavg_start'][0]:.1f} -> {result['loadavg_end'][0]:.1f}; "
+          f"peak RSS {result['peak_rss_mib']} MiB")
+    print(haptics_map.table(rows))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot is not None:
+        print(f"wrote {args.plot}" if haptics_map.plot(rows, args.plot) else "no plot: matplotlib is not installed")
     return 0

@@ -32,8 +32,20 @@ DEFAULT_MAX_SLOPE = 100.0
 # each panel pixel: squaring a slope doubles its highest frequency, so 2 is the least that keeps it from aliasing.
 SUPERSAMPLE = 2
 
+# Steps per unit of log(gz) beyond which the perceptual mapping is computed in float64: float32's log error
+# (about 1e-6 at |log gz| ~ 20) times this stays far below one level. Garment quartiles (`perceptual_constants`
+# keeps gz_high >= 1.01 gz_low) give at most steps_span / log(1.01), about 700 at the default span.
+MAX_FLOAT32_STEPS_PER_LOG = 1000.0
+
+# Largest |slope| the map keeps, per working dtype (squares, and sums of two, stay finite), and the multiple of a
+# mapping's saturating slope it clips at (see `friction_map`).
+SATURATION_MARGIN = 1e5
+SLOPE_LIMIT = {"float32": 1e18, "float64": 1e153}
+
 Normalization = Literal["calibrated", "quantile", "perceptual"]
 NORMALIZATIONS: tuple[str, ...] = ("calibrated", "quantile", "perceptual")
+Precision = Literal["float32", "float64"]
+PRECISIONS: tuple[str, ...] = ("float32", "float64")
 
 # -- the perceptual friction scale (docs/haptics.md has the sources and the reasoning) -------------------------------
 # Electroadhesion adds a normal force that grows with the square of the drive voltage, and the vendor defines a
@@ -286,33 +298,47 @@ def _check_perceptual(c: Mapping[str, float]) -> dict[str, float]:
         raise InputError("perceptual friction constants must be finite")
     if not (out["threshold_level"] > 0 and out["jnd_ratio"] > 1 and out["floor_slope"] > 0
             and out["steps_per_octave"] > 0 and out["steps_span"] > 0 and out["gz_low"] > 0
-            and out["gz_high"] > out["gz_low"]):
+            and out["gz_high"] > out["gz_low"] and np.log(out["gz_high"] / out["gz_low"]) > 0):
         raise InputError(f"perceptual friction constants are out of range: {out}")
     return out
 
 
-def _perceptual(ax: np.ndarray, ay: np.ndarray, c: Mapping[str, float]) -> np.ndarray:
-    """Slopes -> friction in [0, 1] on the just-noticeable-step scale (see `friction_map`)."""
+def _perceptual(gz: np.ndarray, c: Mapping[str, float]) -> np.ndarray:
+    """gx^2 + gy^2 -> friction in [0, 1] on the just-noticeable-step scale (see `friction_map`), in place in `gz`."""
     k = _check_perceptual(c)
-    gz = ax.astype(np.float64) ** 2 + ay.astype(np.float64) ** 2
-    gz = np.minimum(gz, 1e300)
+    dt = gz.dtype.type
     floor = k["floor_slope"] ** 2
-    lg = np.log(np.maximum(gz, floor * 1e-12))
-    # The fabric's quartiles land on fixed steps; log slope is the compressive curve between and beyond them.
-    rel = k["steps_low"] + k["steps_span"] * (lg - np.log(k["gz_low"])) / np.log(k["gz_high"] / k["gz_low"])
+    # The fabric's quartiles land on fixed steps; log slope is the compressive curve between and beyond them:
+    # rel = steps_low + steps_span * (log gz - log gz_low) / log(gz_high / gz_low).
+    rel_a = k["steps_span"] / np.log(k["gz_high"] / k["gz_low"])
+    rel_b = k["steps_low"] - rel_a * np.log(k["gz_low"])
     # Never more steps than the slope itself grants above the flat floor (a doubling of |slope| is a factor 4 in
     # gz): however the garment was calibrated, a flat one cannot be stretched into texture.
-    absolute = k["steps_per_octave"] * (lg - np.log(floor)) / np.log(4.0)
-    steps = np.minimum(rel, absolute)
-    level = k["threshold_level"] * np.power(k["jnd_ratio"], np.clip(steps, 0.0, 64.0))
-    level = np.where(steps > 0.0, level, 0.0)
-    return np.clip(level / 255.0, 0.0, 1.0).astype(np.float32)
+    abs_a = k["steps_per_octave"] / np.log(4.0)
+    abs_b = -abs_a * np.log(floor)
+    # Felt (steps > 0) where both lines are above 0; decided on gz itself, before the log's rounding (about 1e-6
+    # in log gz in float32), so float32 and float64 disagree only within float32's rounding of the threshold slope.
+    felt = gz > dt(max(floor, k["gz_low"] * np.exp(-k["steps_low"] / rel_a)))
+    lg = np.log(np.maximum(gz, dt(max(floor * 1e-12, np.finfo(dt).tiny)), out=gz), out=gz)  # +Inf stays +Inf
+    absolute = lg * dt(abs_a)
+    absolute += dt(abs_b)
+    steps = np.multiply(lg, dt(rel_a), out=lg)
+    steps += dt(rel_b)
+    np.minimum(steps, absolute, out=steps)
+    # Level = threshold * jnd_ratio^steps; beyond `top` steps it exceeds 255 and saturates, so clip there first.
+    top = np.log(255.0 / k["threshold_level"]) / np.log(k["jnd_ratio"])
+    np.clip(steps, 0.0, dt(max(top, 0.0)), out=steps)
+    steps *= dt(np.log(k["jnd_ratio"]))
+    steps += dt(np.log(k["threshold_level"] / 255.0))
+    level = np.exp(steps, out=steps)
+    level *= felt
+    return np.minimum(level, dt(1.0), out=level)
 
 
 def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, int] | None = None, *,
                  normalization: Normalization = "calibrated", quantile: float = 0.98,
                  constants: Mapping[str, float] | None = None, supersample: int = SUPERSAMPLE,
-                 counter: NonFiniteCounter | None = None) -> np.ndarray:
+                 precision: Precision = "float32", counter: NonFiniteCounter | None = None) -> np.ndarray:
     """The 8-bit friction map the haptic screen renders (paper Sec. 4.4).
 
     calibrated (default): z = clip((gx^2 + gy^2) / scale, 0, 1), z' = log10(9 z + 1), where `scale` is the garment's
@@ -333,13 +359,43 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     friction instead would blur away the fine texture the finger should feel. `supersample=1` maps at the finer
     of the two grids per axis, as kiosks did before. Quantised: 0 = natural friction, 255 = maximum added friction.
 
+    `precision`: float32 (the kiosk's) computes every pass in float32, in place; float64 is the reference it is
+    tested against (docs/haptics.md states the largest level difference between them). The quantile mapping, and
+    constants that float32 cannot carry precisely (see `_working_dtype`), are computed in float64 either way.
+
     Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
 
     Example:
         >>> friction_map(np.zeros((4, 4)), np.zeros((4, 4)), scale=0.05).max()
         0
     """
-    ax, ay = sanitize_gradients(gx, gy, counter=counter)
+    if precision not in PRECISIONS:
+        raise InputError(f"precision must be one of {', '.join(PRECISIONS)}; got {precision!r}")
+    dt = np.float32 if precision == "float32" else np.float64
+    if normalization == "calibrated":
+        if scale is None or isinstance(scale, bool) or not isinstance(scale, (int, float, np.floating, np.integer)) \
+                or not np.isfinite(scale) or scale <= 0:
+            raise InputError(f"friction scale must be a positive finite number (from the bundle's calibration); "
+                             f"got {scale!r}")
+    elif normalization == "perceptual":
+        if constants is None:
+            raise InputError("the perceptual friction mapping needs its constants (from the bundle)")
+        _check_perceptual(constants)
+    elif normalization == "quantile":
+        if not 0.0 < quantile <= 1.0:
+            raise InputError(f"quantile must be in (0, 1]; got {quantile}")
+    else:
+        raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
+    saturation = _saturation_gz(normalization, scale, constants)
+    dt = _working_dtype(dt, normalization, saturation, constants)
+    ax, ay = sanitize_gradients(gx, gy, counter=counter, dtype=dt)
+    # Slopes far beyond saturation are clipped before interpolation: squares cannot overflow, and +Inf and -Inf
+    # neighbours cannot interpolate to NaN. SATURATION_MARGIN times the saturating slope keeps every interpolated
+    # value that saturated unclipped saturated (no interpolation weight is below 1 / (2 MAX_SIDE)), and keeps the
+    # float32 cancellation between huge opposite slopes far below a level. New arrays: the caller's input is never
+    # modified, and every later pass works in place.
+    limit = dt(min(SATURATION_MARGIN * np.sqrt(saturation), SLOPE_LIMIT[np.dtype(dt).name]))
+    ax, ay = np.clip(ax, -limit, limit), np.clip(ay, -limit, limit)
     out_size = None
     if size is not None:
         w, h = check_size(size, "device pixels")
@@ -352,35 +408,70 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
             ay = _resize(ay, fine, cv2.INTER_LINEAR)
         if fine != (w, h):
             out_size = (w, h)
+    gain = 255.0
     if normalization == "calibrated":
-        if scale is None or not isinstance(scale, (int, float, np.floating, np.integer)) \
-                or not np.isfinite(scale) or scale <= 0:
-            raise InputError(f"friction scale must be a positive finite number (from the bundle's calibration); "
-                             f"got {scale!r}")
-        # Any |slope| above sqrt(scale) saturates to z = 1, so clipping there is exact and prevents overflow.
-        limit = np.float32(2.0 * np.sqrt(scale))
-        ax = np.clip(ax, -limit, limit)  # a new array: the caller's input is never modified
-        ay = np.clip(ay, -limit, limit)
-        z = (ax * ax + ay * ay) * np.float32(1.0 / scale)
-        np.clip(z, 0.0, 1.0, out=z)
-        zp = np.log10(np.float32(9.0) * z + np.float32(1.0))
+        # z' = log10(9 min(gz / scale, 1) + 1); the 1/ln 10 of log10 is applied after the (linear) area average.
+        gz = _squared_slope(ax, ay)
+        with np.errstate(over="ignore"):  # a product beyond the range is +Inf, which saturates below
+            factor = dt(9.0 / scale)
+            if np.isfinite(factor):
+                gz *= factor  # factor > 0: 9 / a finite scale does not underflow in the working dtype, no Inf * 0
+                np.minimum(gz, dt(9.0), out=gz)  # also turns an overflowed square (+Inf) into full friction
+            else:  # a subnormal scale: any slope at all saturates (and 0 * Inf would be NaN)
+                np.multiply(gz > 0, dt(9.0), out=gz)
+        gz += dt(1.0)
+        zp = np.log(gz, out=gz)
+        gain = 255.0 / np.log(10.0)
     elif normalization == "perceptual":
-        if constants is None:
-            raise InputError("the perceptual friction mapping needs its constants (from the bundle)")
-        zp = _perceptual(ax, ay, constants)
-    elif normalization == "quantile":
-        if not 0.0 < quantile <= 1.0:
-            raise InputError(f"quantile must be in (0, 1]; got {quantile}")
-        a64, b64 = ax.astype(np.float64), ay.astype(np.float64)
-        gz = np.minimum(a64 * a64 + b64 * b64, 1e300)
-        gz = np.minimum(gz, np.quantile(gz, quantile))
-        zp = _min_max(np.log10(9.0 * _min_max(gz) + 1.0)).astype(np.float32)
-    else:
-        raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
+        zp = _perceptual(_squared_slope(ax, ay), constants)
+    else:  # per-frame quantile and min-max: the comparison mapping, always in float64
+        with np.errstate(over="ignore"):
+            g64 = np.minimum(ax * ax + ay * ay, 1e300)
+        g64 = np.minimum(g64, np.quantile(g64, quantile))
+        zp = _min_max(np.log10(9.0 * _min_max(g64) + 1.0)).astype(dt)
     if out_size is not None:
         # The mean friction over each panel pixel: the pixel-constant frame closest to the mapped surface.
-        zp = _resize(np.ascontiguousarray(zp, dtype=np.float32), out_size, cv2.INTER_AREA)
-    return np.rint(np.clip(zp, 0.0, 1.0) * 255.0).astype(np.uint8)
+        zp = _resize(zp, out_size, cv2.INTER_AREA)
+    zp *= dt(gain)
+    np.clip(zp, 0.0, 255.0, out=zp)
+    return np.rint(zp, out=zp).astype(np.uint8)
+
+
+def _saturation_gz(normalization: str, scale: float | None, constants: Mapping[str, float] | None) -> float:
+    """The gx^2 + gy^2 beyond which the mapping gives full friction (+Inf for the per-frame quantile mapping)."""
+    if normalization == "calibrated":
+        return float(scale)
+    if normalization == "perceptual":
+        k = _check_perceptual(constants)
+        rel_a = k["steps_span"] / np.log(k["gz_high"] / k["gz_low"])
+        abs_a = k["steps_per_octave"] / np.log(4.0)
+        top = max(np.log(255.0 / k["threshold_level"]) / np.log(k["jnd_ratio"]), 0.0)
+        # where both lines (see `_perceptual`) reach the step whose level is 255
+        log_gz = max(np.log(k["gz_low"]) + (top - k["steps_low"]) / rel_a, np.log(k["floor_slope"] ** 2) + top / abs_a)
+        return float(np.exp(min(log_gz, 700.0)))
+    return float("inf")
+
+
+def _working_dtype(dt: type, normalization: str, saturation_gz: float, constants: Mapping[str, float] | None) -> type:
+    """float64 where float32 would be imprecise: the quantile mapping (its min-max stretches a rounding to the full
+    range), a saturation point near float32's range limits, or perceptual quartiles so close that a step is a cliff
+    in log(gz)."""
+    if dt is np.float64 or normalization == "quantile":
+        return np.float64
+    if not 1e-30 <= saturation_gz <= 1e26:  # SATURATION_MARGIN * its root must stay within SLOPE_LIMIT
+        return np.float64
+    if normalization == "perceptual":
+        k = _check_perceptual(constants)
+        if k["steps_span"] / np.log(k["gz_high"] / k["gz_low"]) > MAX_FLOAT32_STEPS_PER_LOG:
+            return np.float64
+    return dt
+
+
+def _squared_slope(ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """ax^2 + ay^2, in place in `ax` (both are the map's own arrays)."""
+    gz = np.multiply(ax, ax, out=ax)
+    gz += np.multiply(ay, ay, out=ay)
+    return gz
 
 
 def _resize(a: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:

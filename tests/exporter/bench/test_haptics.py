@@ -6,6 +6,7 @@ import sys
 import numpy as np
 import pytest
 
+from exporter.bench import haptics_map
 from exporter.bench.haptics import (FLAT_NOISES, MAX_TEXTURE_PERIOD_MM, PITCH_MM, TRUTH_PITCH_MM, calibrate,
                                     contrast_row, distinguishability, fabric_params, period_row, run_case)
 from trainer.data.synth_fabrics import FabricParams
@@ -80,3 +81,18 @@ def test_bad_options_are_one_line(args, message):
     r = subprocess.run([sys.executable, "-m", "vtkiosk", "bench", "haptics", *args], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode != 0 and message in r.stderr + r.stdout and "Traceback" not in r.stderr
+
+
+def test_map_sweep_times_both_supersamples_and_states_the_float32_error(tmp_path):
+    rows = haptics_map.sweep(1, grids=(24,), panels=((40, 30),))
+    assert [r["mapping"] for r in rows] == list(haptics_map.MAPPINGS)
+    for r in rows:
+        for ss in (1, 2):
+            t = r[f"supersample_{ss}"]
+            assert 0 < t["median_ms"] <= t["p95_ms"] and t["iqr_ms"] >= 0
+        assert r["ratio"] > 0
+        assert r["max_level_diff_vs_float64"] <= 1 < r["max_level_diff_zeros_vs_float64"]
+    text = haptics_map.table(rows)
+    assert text.count("\n") == len(rows) + 1 and "| 24 | 40x30 | perceptual |" in text
+    png = haptics_map.plot(rows, tmp_path / "sweep.png")
+    assert png is None or png.stat().st_size > 0

@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from kiosk.contract.errors import InputError
-from kiosk.contract.haptics import (MIN_FRICTION_SCALE, NonFiniteCounter, calibrate_scale, friction_map,
+from kiosk.contract.haptics import (MIN_FRICTION_SCALE, NORMALIZATIONS, PRECISIONS, NonFiniteCounter, calibrate_scale,
+                           friction_map, perceptual_constants,
                            gradients_from_normals, height_from_gradients, normals_from_gradients)
 
 H, W = 96, 128
@@ -258,3 +259,100 @@ def test_panel_at_model_pitch_gets_the_mean_friction_not_an_alias(period_px):
 def test_friction_rejects_bad_supersample(bad):
     with pytest.raises(InputError, match="supersample"):
         friction_map(np.zeros((2, 2)), np.zeros((2, 2)), 0.1, size=(2, 2), supersample=bad)
+
+
+# ---------------------------------------------------------------- float32 against the float64 reference
+SLOPES = st.one_of(st.floats(-1.0, 1.0), st.floats(-0.05, 0.05), st.floats(allow_nan=True, allow_infinity=True),
+                   st.sampled_from([0.0, -0.0, 1e30, -1e300, 3.5e38, 1e-30, 1e-320, np.nan, np.inf, -np.inf]))
+SCALES = st.one_of(st.floats(1e-6, 1e6), st.sampled_from([MIN_FRICTION_SCALE, 1e-300, 1e-30, 1e30, 1e60, 1e300]))
+
+
+def _constants(gx, gy):
+    """A garment's perceptual constants from the field (its finite, bounded part: a calibration set is real cloth)."""
+    def clean(a):
+        return np.clip(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0), -1.0, 1.0)
+    return perceptual_constants(clean(gx), clean(gy))
+
+
+def _as_float32(a):
+    """What a float32 model emits for these slopes: rounded, beyond-range values at float32's limit, NaN/Inf kept."""
+    big = np.finfo(np.float32).max
+    return np.where(np.isfinite(a), np.clip(a, -big, big), a).astype(np.float32)
+
+
+@settings(max_examples=60, deadline=None)
+@given(hnp.arrays(np.float64, st.tuples(st.integers(1, 16), st.integers(1, 16)), elements=SLOPES),
+       st.data(), st.one_of(st.none(), st.tuples(st.integers(1, 32), st.integers(1, 32))),
+       st.sampled_from(NORMALIZATIONS), SCALES, st.integers(1, 3))
+def test_float32_map_within_one_level_of_float64(gx, data, size, normalization, scale, supersample):
+    """On the slopes a float32 model emits, the float32 map is within 1 level of the float64 map everywhere. (On
+    float64 slopes the perceptual map's detection threshold is a step of threshold_level: a slope within float32's
+    rounding of it may land on either side; the next test pins that.)"""
+    gy = data.draw(hnp.arrays(np.float64, gx.shape, elements=SLOPES))
+    gx, gy = _as_float32(gx), _as_float32(gy)
+    kw = {"size": size, "normalization": normalization, "supersample": supersample,
+          "constants": _constants(gx, gy) if normalization == "perceptual" else None}
+    c32, c64 = NonFiniteCounter(), NonFiniteCounter()
+    fast = friction_map(gx, gy, scale, counter=c32, **kw)
+    ref = friction_map(gx, gy, scale, precision="float64", counter=c64, **kw)
+    assert fast.dtype == ref.dtype == np.uint8 and fast.shape == ref.shape
+    assert np.abs(fast.astype(int) - ref.astype(int)).max() <= 1
+    assert c32.count == c64.count
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(8, 48), st.floats(2.0, 12.0), st.floats(0.001, 0.5), st.integers(0, 2 ** 16))
+def test_float32_map_of_fabric_like_fields_within_one_level(n, period, amplitude, seed):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n]
+    gx = amplitude * np.cos(2 * np.pi * (x + y) / period) + 0.1 * amplitude * rng.standard_normal((n, n))
+    gy = amplitude * np.sin(2 * np.pi * x / period) + 0.1 * amplitude * rng.standard_normal((n, n))
+    for normalization in NORMALIZATIONS:
+        kw = {"size": (3 * n + 1, 2 * n + 3), "normalization": normalization,
+              "constants": perceptual_constants(gx, gy) if normalization == "perceptual" else None}
+        fast = friction_map(gx, gy, calibrate_scale(gx, gy), **kw).astype(int)
+        ref = friction_map(gx, gy, calibrate_scale(gx, gy), precision="float64", **kw).astype(int)
+        assert np.abs(fast - ref).max() <= 1, normalization
+
+
+def test_float32_and_float64_agree_off_the_detection_threshold_and_differ_at_most_by_it_on_it():
+    c = perceptual_constants(np.zeros((4, 4)), np.zeros((4, 4)))  # a flat garment: the threshold is floor_slope
+    zero = np.zeros((4, 4))
+    for rel in (-1e-5, -1e-6, 1e-6, 1e-5):  # a few float32 roundings away: both sides agree
+        gx = np.full((4, 4), c["floor_slope"] * (1 + rel))
+        kw = {"size": (8, 8), "normalization": "perceptual", "constants": c}
+        np.testing.assert_array_equal(friction_map(gx, zero, None, **kw),
+                                      friction_map(gx, zero, None, precision="float64", **kw))
+    gx = np.full((4, 4), c["floor_slope"])  # on it: float32's rounding of the slope decides, one threshold level
+    d = np.abs(friction_map(gx, zero, None, normalization="perceptual", constants=c).astype(int)
+               - friction_map(gx, zero, None, normalization="perceptual", constants=c, precision="float64"))
+    assert d.max() <= round(c["threshold_level"])
+
+
+@pytest.mark.parametrize("scale", [1e-320, 1e-300, 1e-40, 1e40, 1e300])
+def test_friction_scales_beyond_float32_never_make_nan(scale):
+    gx = np.array([[0.0, 1e-100, 1e-20, 1.0], [1e20, 1e150, 3.5e38, np.nan]])
+    for precision in PRECISIONS:
+        out = friction_map(gx, gx.T.copy().reshape(gx.shape), scale, size=(6, 3), precision=precision)
+        assert out.dtype == np.uint8
+    ref = friction_map(gx, np.zeros_like(gx), scale, precision="float64")
+    np.testing.assert_array_equal(friction_map(gx, np.zeros_like(gx), scale), ref)
+    if scale < 1e-200:
+        assert ref[0, 0] == 0 and ref[0, 1:].min() == 255  # any slope saturates, a flat pixel stays natural
+
+
+def test_friction_rejects_bad_precision():
+    with pytest.raises(InputError, match="precision"):
+        friction_map(np.zeros((2, 2)), np.zeros((2, 2)), 0.1, precision="float16")  # type: ignore[arg-type]
+
+
+def test_float32_map_leaves_float32_input_untouched_in_every_mapping():
+    gx = np.linspace(-0.2, 0.2, 30, dtype=np.float32).reshape(5, 6)
+    gy = gx[::-1].copy()
+    keep = gx.copy(), gy.copy()
+    for normalization in NORMALIZATIONS:
+        c = perceptual_constants(gx, gy) if normalization == "perceptual" else None
+        for size in (None, (6, 5), (12, 10)):
+            friction_map(gx, gy, 0.01, size=size, normalization=normalization, constants=c)
+            np.testing.assert_array_equal(gx, keep[0])
+            np.testing.assert_array_equal(gy, keep[1])
