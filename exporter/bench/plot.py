@@ -104,11 +104,14 @@ def plot_pareto(rows: list[dict], out: Path, *, title: str) -> Path:
         idx = pareto([(r["p50_ms"], r["full_angle_deg"]) for r in timed])
         ax.plot([timed[i]["p50_ms"] for i in idx], [timed[i]["full_angle_deg"] for i in idx], "-", color="0.5",
                 lw=1, zorder=2)
+        flats: dict[float, list[str]] = {}
         for r in sel:
-            if r["engine"] == "flat":
-                ax.axhline(r["full_angle_deg"], ls="--", color="0.7", lw=0.8)
-                ax.text(1.0, r["full_angle_deg"], f"flat, {r['setting'].removeprefix('planner: ')} ",
-                        transform=ax.get_yaxis_transform(), fontsize=6, color="0.4", ha="right", va="bottom")
+            if r["engine"] == "flat":  # settings that share a truth share one line
+                flats.setdefault(round(r["full_angle_deg"], 2), []).append(r["setting"].removeprefix("planner: "))
+        for angle, names in flats.items():
+            ax.axhline(angle, ls="--", color="0.7", lw=0.8)
+            ax.text(1.0, angle, "flat, " + (names[0] if len(names) == 1 else "every setting") + " ",
+                    transform=ax.get_yaxis_transform(), fontsize=6, color="0.4", ha="right", va="bottom")
         ax.set_xscale("log")
         ax.set_xlabel("p50 latency (ms, log)")
         ax.set_ylabel("full-field tactile angle vs ground truth (deg)")
