@@ -495,7 +495,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
     for prof in result["profiles"]:
         print("\n".join(profile_lines(prof)))
     b = result["bundle"]
-    print(f"bundle: {b['bytes'] / 1e6:.2f} MB ({', '.join(f'{k} graph {v / 1e6:.2f} MB' for k, v in b['graph_bytes'].items())})")
+    parts = ", ".join(f"{k} graph {v / 1e6:.2f} MB" for k, v in b["graph_bytes"].items())
+    print(f"bundle: {b['bytes'] / 1e6:.2f} MB ({parts})")
     for note in result["notes"]:
         print(f"note: {note}")
     load = result["environment"]
