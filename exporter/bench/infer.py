@@ -1,12 +1,15 @@
 """`vtkiosk bench infer --bundle FILE`: speed against error of a bundle's graphs.
 
-For each size x precision x graph x execution provider: latency (warm-up, then --runs timed runs: p50/p95) and peak
-RSS, each configuration in a fresh process (exporter/bench/worker.py); error against the fp32 reference of the same
-model on held-out sketches (visual PSNR, tactile MAE, friction-map MAE in levels: exporter/accuracy.py); on
-synthetic garments the full-field error against ground truth (exporter/bench/truth.py), so quantization error sits
-beside model error; and PyTorch eager fp32 at the same sizes with the speed ratio. Where the reference and the other
-precisions come from: exporter/bench/sources.py. Prints a table and the goals' verdict, writes JSON and a
-speed-vs-error PNG.
+For each size x precision x graph form (native ConvTranspose, or the int8 Conv + DepthToSpace rewrite) x engine
+(ONNX Runtime per execution provider, OpenVINO), and for the kiosk planner's own settings (exporter/bench/planned.py):
+latency (warm-up, then --runs timed runs: p50/p95) and peak RSS, each configuration in a fresh process
+(exporter/bench/worker.py); graph GMAC (exporter/bench/macs.py) and bytes; error against the fp32 reference of the
+same model on held-out sketches (visual PSNR, tactile MAE, friction-map MAE in levels: exporter/accuracy.py); on
+synthetic garments the full-field error against ground truth with the garment filling the canvas
+(exporter/bench/truth.py) beside the trivial answer (a flat garment), so quantization error sits beside model error;
+and PyTorch eager fp32 at the same sizes with the speed ratio. Where the reference and the other precisions come
+from: exporter/bench/sources.py. Prints a table and the goals' verdict, writes JSON, a speed-vs-error PNG and the
+Pareto plot of latency against error vs truth.
 """
 from __future__ import annotations
 
@@ -25,9 +28,11 @@ import numpy as np
 
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
 from exporter.bench.sources import BenchError, Candidate, build_sources, torch_available
+from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid, unpack
 
 PRECISIONS = ("fp32", "fp16", "int8")
+ENGINES = ("onnxruntime", "openvino")
 NOT_COMPUTE = {"AzureExecutionProvider"}  # a remote-call provider, not a place to run a graph
 
 
@@ -75,13 +80,23 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--reference", type=Path, default=None, help="an fp32 bundle of the same checkpoint, as reference")
     p.add_argument("--garment", type=Path, default=None,
                    help="synthetic garment folder with fullT/ for errors against ground truth (default: the run's)")
+    p.add_argument("--engines", type=_names(ENGINES), default=None,
+                   help="onnxruntime,openvino (default: every installed one)")
+    p.add_argument("--truth", choices=("filled", "padded"), default="filled",
+                   help="GT canvas: filled (default) re-synthesises the garment on a frame of each size, so it fills "
+                        "the canvas at the model's pitch, as a large drawing does in the kiosk; padded places the "
+                        "training garment on blank paper")
+    p.add_argument("--no-planner", action="store_true",
+                   help="skip the rows of the kiosk planner's own settings (preview / refine, physical scale)")
     p.add_argument("--no-torch", action="store_true", help="skip PyTorch eager")
     p.add_argument("--profile", action="store_true",
                    help="also profile the bundle's precision at the largest size (ONNX Runtime per-op-type time)")
     p.add_argument("--trusted-keys", type=Path, default=None,
                    help="check the bundle's signature against these keys (default: hashes only)")
     p.add_argument("--json", type=Path, default=None, help="write the results here")
-    p.add_argument("--plot", type=Path, default=None, help="write the speed-vs-error PNG here")
+    p.add_argument("--plot", type=Path, default=None, help="write the speed-vs-error-against-fp32 PNG here")
+    p.add_argument("--pareto", type=Path, default=None,
+                   help="write the Pareto plot here: latency against error against the ground truth")
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -189,16 +204,81 @@ def _fmt_size(size: tuple[int, int]) -> str:
     return f"{size[0]}x{size[1]}"
 
 
+ENGINE_ORDER = {"torch": 0, "onnxruntime": 1, "openvino": 2}
+PRECISION_ORDER = {"fp32": 0, "fp16": 1, "int8": 2}
+
+
+def _form(path: Path) -> str:
+    """`native` when the graph keeps its transposed convolutions, `rewritten` when the exporter made them
+    Conv + DepthToSpace (what lets ONNX Runtime run the decoder int8, at twice the MACs)."""
+    import onnx
+    model = onnx.load(str(path), load_external_data=False)
+    return "native" if any(n.op_type == "ConvTranspose" for n in model.graph.node) else "rewritten"
+
+
+def _candidates(kind: str, src, engines: list[str], providers: list[str], torch_on: bool) -> list[Candidate]:
+    """Every graph file of `kind` on every engine (ONNX Runtime on each provider), plus PyTorch eager."""
+    files = [(p, path, source) for (k, p), (path, source) in src.graphs.items() if k == kind]
+    if kind in src.native_int8:
+        files.append(("int8", src.native_int8[kind], "run"))
+    out = []
+    for precision, path, source in files:
+        form = _form(path)
+        for eng in engines:
+            for pr in (providers if eng == "onnxruntime" else ["CPU"]):
+                out.append(Candidate(kind, precision, pr, source, path, engine=eng, form=form))
+    if torch_on:
+        out.append(Candidate(kind, "fp32", "torch-eager", "torch", None, engine="torch", form="native"))
+    return sorted(out, key=lambda c: (ENGINE_ORDER[c.engine], PRECISION_ORDER[c.precision], c.form != "native"))
+
+
+def _planned_candidates(cands: list[Candidate], shipped: str) -> list[Candidate]:
+    """At the planner's settings: what the kiosk would run (the bundle's own graphs, on every engine), the fp32
+    graph in ONNX Runtime as the reference, and PyTorch eager for the ratio."""
+    return [c for c in cands if c.source == "bundle" or c.engine == "torch"
+            or (c.precision == "fp32" and c.engine == "onnxruntime" and shipped != "fp32")]
+
+
+def _test_runner(c: Candidate, threads: int, src, ref_sess):
+    """Something with ORT's `run(names, feed)` for the error columns (same engine and graph as the timing)."""
+    if c.path is None:
+        return _TorchSession(src.run_dir, src.which, c.graph, threads)
+    if c.engine == "openvino":
+        from kiosk.inference.backends import open_graph
+        return open_graph("openvino", c.path, threads=threads)
+    if ref_sess is not None and Path(c.path) == Path(src.reference[c.graph]) and c.provider == "CPUExecutionProvider":
+        return ref_sess  # the reference itself: its error is exactly zero by definition
+    return _session(c.path, c.provider, threads)
+
+
+def _flat_row(kind: str, size: str, setting: str, errors: dict) -> dict:
+    """The trivial answer (a flat garment: zero slopes) as a reference row of the GT columns."""
+    return {"graph": kind, "size": size, "setting": setting, "precision": "-", "provider": "-", "engine": "flat",
+            "form": "-", "source": "reference", "declared": True, "reference_row": "trivial: flat (zero slopes)",
+            **errors}
+
+
 def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
     import onnxruntime as ort
 
     from exporter.accuracy import compare_outputs, reference_outputs
+    from exporter.bench.macs import graph_macs
     from exporter.calibration import held_out_set
     from kiosk.bundle.archive import open_bundle
     from kiosk.contract.sketch import letterbox, network_input, object_mask
+    from kiosk.inference.backends import available
 
     progress_on = not args.no_progress
     env = _environment()
+    installed = available()
+    engines = args.engines or list(installed)
+    missing = [e for e in engines if e not in installed]
+    if missing:
+        raise BenchError(f"engine(s) {', '.join(missing)} not installed (installed: {', '.join(installed)}; "
+                         "OpenVINO: pip install 'vtkiosk[openvino]')")
+    if "openvino" in installed:
+        import openvino
+        env["openvino"] = openvino.__version__
     with tempfile.TemporaryDirectory(prefix="vtkiosk-bench-") as tmp_s:
         tmp = Path(tmp_s)
         trusted = None
@@ -237,67 +317,130 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
         if not truth_on:
             src.notes.append("no full-field ground truth (needs a synthetic garment folder with fullT/ and the "
                              "trainer)")
-        precisions = [p for p in args.precisions if any((k, p) in src.graphs for k in graphs)]
-        configs = [(s, k, p, pr) for s in sizes for k in graphs for p in precisions for pr in providers
-                   if (k, p) in src.graphs]
-        total = len(configs) + (len(sizes) * len(graphs) if torch_on else 0) + (len(graphs) if args.profile else 0)
+        cands = {k: _candidates(k, src, engines, providers, torch_on) for k in graphs}
+        planned = []
+        if not args.no_planner:
+            from exporter.bench.planned import planned_inputs
+            try:
+                planned = planned_inputs(bundle)
+            except KioskError as exc:
+                src.notes.append(f"no planner rows: {exc}")
+            for pl in planned:
+                if pl.graph not in cands and pl.graph in m.graphs:
+                    cands[pl.graph] = _candidates(pl.graph, src, engines, providers, torch_on)
+        total = sum(len(cands[k]) for k in graphs) * len(sizes) + (len(graphs) if args.profile else 0) + sum(
+            len(_planned_candidates(cands[pl.graph], m.graph(pl.graph).precision)) for pl in planned
+            if pl.graph in cands)
         bar = _Progress(total, progress_on)
         for note in src.notes:
             bar.note(f"bench: note: {note}")
         sketch = bundle.asset("sketch")
         rows: list[dict] = []
+        macs: dict[tuple[str, tuple[int, int]], int | None] = {}
+
+        def gmac(path: Path | None, kind: str, size: tuple[int, int]) -> float | None:
+            path = Path(path) if path is not None else Path(src.reference[kind]) if kind in src.reference else None
+            if path is None:
+                return None
+            key = (str(path), size)
+            if key not in macs:
+                shape = (1, 1, size[1], size[0])
+                macs[key] = graph_macs(path, {"sketch": shape, "mask": shape})
+            return None if macs[key] is None else macs[key] / 1e9
+
+        def measure(c: Candidate, kind: str, size: tuple[int, int], feed_path: Path, base: dict,
+                    ref_sess, ref_out, held_out, field) -> dict:
+            bar.step(f"{kind} {base.get('setting') or _fmt_size(size)} {c.precision} {c.form} {c.engine}")
+            spec = {"kind": {"torch": "torch", "openvino": "openvino"}.get(c.engine, "onnx"), "graph": kind,
+                    "size": list(size), "runs": args.runs, "warmup": args.warmup, "threads": args.threads,
+                    "wait": args.wait, "input": str(feed_path), "provider": c.provider,
+                    "outputs": GRAPH_OUTPUTS[kind], "path": str(c.path) if c.path else None,
+                    "run": str(src.run_dir) if src.run_dir else None, "which": src.which}
+            row = {**base, "precision": c.precision, "provider": c.provider, "engine": c.engine, "form": c.form,
+                   "source": c.source, "gmac": gmac(c.path, kind, size),
+                   "graph_bytes": Path(c.path).stat().st_size if c.path else None, **_latency(_worker(spec, tmp))}
+            test = _test_runner(c, args.threads, src, ref_sess)
+            if ref_out is not None:
+                row.update(compare_outputs(ref_out, test, GRAPH_OUTPUTS[kind], held_out, m.friction_scale,
+                                           normalization=m.friction_normalization,
+                                           constants=m.friction_constants or None))
+            if field is not None and "tactile" in GRAPH_OUTPUTS[kind]:
+                row.update(field(test))
+            return row
+
         try:
             for size in sizes:
-                fitted, _ = letterbox(sketch, size)
-                x = network_input(fitted, object_mask(fitted))
+                truth = None
+                if truth_on:
+                    from exporter.bench.truth import filled_truth, garment_truth
+                    truth = filled_truth(garment_dir, size, tmp / "filled") if args.truth == "filled" \
+                        else garment_truth(garment_dir, size)
+                    if truth is None:
+                        src.notes.append(f"no ground truth at {_fmt_size(size)} (the garment does not fit)")
+                if truth is not None:
+                    x = truth.input  # the garment filling the canvas, as timed
+                else:
+                    fitted, _ = letterbox(sketch, size)
+                    x = network_input(fitted, object_mask(fitted))
                 feed_path = tmp / f"input-{_fmt_size(size)}.npz"
                 np.savez(feed_path, sketch=x.sketch, mask=x.mask)
                 held_out = held_out_set(sketch, [size], args.error_sketches)
-                truth = None
-                if truth_on:
-                    from exporter.bench.truth import garment_truth
-                    truth = garment_truth(garment_dir, size)
+                field = None
+                if truth is not None:
+                    from exporter.bench.truth import field_errors
+
+                    def field(test, truth=truth):
+                        tac = test.run(["tactile"], feeds(truth.input.sketch, truth.input.mask))[0]
+                        return field_errors(tac, truth, m.friction_scale)
                 for kind in graphs:
                     outputs = GRAPH_OUTPUTS[kind]
                     ref_sess = _session(src.reference[kind], "CPUExecutionProvider", args.threads) \
                         if kind in src.reference else None
                     ref_out = reference_outputs(ref_sess, outputs, held_out) if ref_sess is not None else None
-                    cands = [Candidate(kind, p, pr, src.graphs[(kind, p)][1], src.graphs[(kind, p)][0])
-                             for (s, k, p, pr) in configs if s == size and k == kind]
-                    if torch_on:
-                        cands.append(Candidate(kind, "fp32", "torch-eager", "torch", None))
-                    for c in cands:
-                        bar.step(f"{kind} {_fmt_size(size)} {c.precision} {c.provider}")
-                        spec = {"kind": "torch" if c.path is None else "onnx", "graph": kind, "size": list(size),
-                                "runs": args.runs, "warmup": args.warmup, "threads": args.threads,
-                                "wait": args.wait, "input": str(feed_path), "provider": c.provider,
-                                "path": str(c.path) if c.path else None,
-                                "run": str(src.run_dir) if src.run_dir else None, "which": src.which}
-                        row = {"graph": kind, "size": _fmt_size(size), "width": size[0], "height": size[1],
-                               "precision": c.precision, "provider": c.provider, "source": c.source,
-                               "declared": tuple(size) in declared[kind], **_latency(_worker(spec, tmp))}
-                        if c.path is None:
-                            test = _TorchSession(src.run_dir, src.which, kind, args.threads)
-                        elif ref_sess is not None and Path(c.path) == Path(src.reference[kind]) and \
-                                c.provider == "CPUExecutionProvider":
-                            test = ref_sess  # the reference itself: its error is exactly zero by definition
-                        else:
-                            test = _session(c.path, c.provider, args.threads)
-                        if ref_out is not None:
-                            row.update(compare_outputs(ref_out, test, outputs, held_out, m.friction_scale,
-                                                       normalization=m.friction_normalization,
-                                                       constants=m.friction_constants or None))
-                        if truth is not None and "tactile" in outputs:
-                            from exporter.bench.truth import field_errors
-                            feed = feeds(truth.input.sketch, truth.input.mask)
-                            tac = test.run(["tactile"], feed)[0]
-                            row.update(field_errors(tac, truth, m.friction_scale))
-                        rows.append(row)
+                    base = {"graph": kind, "size": _fmt_size(size), "width": size[0], "height": size[1],
+                            "setting": f"{_fmt_size(size)} canvas", "declared": tuple(size) in declared[kind]}
+                    if truth is not None and "tactile" in outputs:
+                        from exporter.bench.truth import field_errors
+                        flat = np.zeros((1, 2, size[1], size[0]), np.float32)
+                        rows.append(_flat_row(kind, _fmt_size(size), base["setting"],
+                                              field_errors(flat, truth, m.friction_scale)))
+                    for c in cands[kind]:
+                        rows.append(measure(c, kind, size, feed_path, base, ref_sess, ref_out, held_out, field))
+            if planned:
+                from exporter.bench.planned import asset_truth, to_asset_frame
+                from trainer.metrics import full_field_metrics
+                at = asset_truth(garment_dir) if truth_on else None
+                for i, pl in enumerate(planned):
+                    kind = pl.graph
+                    if kind not in cands:
+                        continue
+                    feed_path = tmp / f"planned-{i}.npz"
+                    np.savez(feed_path, sketch=pl.input.sketch, mask=pl.input.mask)
+                    ref_sess = _session(src.reference[kind], "CPUExecutionProvider", args.threads) \
+                        if kind in src.reference else None
+                    ref_out = reference_outputs(ref_sess, GRAPH_OUTPUTS[kind], [pl.input]) \
+                        if ref_sess is not None else None
+                    base = {"graph": kind, "size": _fmt_size(pl.grid), "width": pl.grid[0], "height": pl.grid[1],
+                            "setting": pl.setting, "felt_ratio": pl.felt_ratio,
+                            "declared": tuple(pl.grid) in {tuple(s) for s in m.graph(kind).sizes}}
+                    field = None
+                    if at is not None:
+                        gx, gy, mask = at
+
+                        def field(test, pl=pl):
+                            tac = test.run(["tactile"], feeds(pl.input.sketch, pl.input.mask))[0]
+                            back = to_asset_frame(tac[0], pl, gx.shape)
+                            return full_field_metrics(back[0], back[1], gx, gy, mask, m.friction_scale)
+                        rows.append(_flat_row(kind, base["size"], pl.setting, full_field_metrics(
+                            np.zeros_like(gx), np.zeros_like(gy), gx, gy, mask, m.friction_scale)))
+                    for c in _planned_candidates(cands[kind], m.graph(kind).precision):
+                        rows.append(measure(c, kind, pl.grid, feed_path, base, ref_sess, ref_out, [pl.input],
+                                            field))
             for r in rows:
-                eager = [t for t in rows if t["provider"] == "torch-eager" and t["graph"] == r["graph"]
-                         and t["size"] == r["size"]]
-                r["speedup_vs_torch"] = (eager[0]["p50_ms"] / r["p50_ms"]) if eager and r["provider"] != \
-                    "torch-eager" else None
+                eager = [t for t in rows if t["engine"] == "torch" and t["graph"] == r["graph"]
+                         and t["setting"] == r["setting"]]
+                r["speedup_vs_torch"] = (eager[0]["p50_ms"] / r["p50_ms"]) \
+                    if eager and r["engine"] not in ("torch", "flat") else None
             profiles = []
             if args.profile:
                 size = max(sizes, key=lambda s: s[0] * s[1])
@@ -313,23 +456,26 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                             "profile": str(folder)}
                     prof = _worker(spec, tmp)["profile"]
                     profiles.append({"graph": kind, "size": _fmt_size(size), "precision": precision, **prof})
+            graph_bytes = {k: bundle.graph_path(k).stat().st_size for k in m.graphs}
         finally:
             bar.close()
     env["loadavg_end"] = list(os.getloadavg())
     default = {k: m.graph(k).precision for k in graphs}
     return {
-        "schema": "vtkiosk-bench-infer/1",
+        "schema": "vtkiosk-bench-infer/2",
         "command": " ".join([prog] + [shlex.quote(a) for a in argv]),
         "created_at": dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
         "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
                    "checkpoint_sha256": m.checkpoint_sha256, "precision": default,
+                   "bytes": Path(args.bundle).stat().st_size, "graph_bytes": graph_bytes,
                    "declared_sizes": {k: [_fmt_size(tuple(s)) for s in m.graph(k).sizes] for k in graphs},
                    "manifest_errors": m.errors, "provenance": m.provenance, "signature_checked": trusted is not None},
         "reference": src.reference_from or None,
         "settings": {"runs": args.runs, "warmup": args.warmup, "threads": args.threads, "wait": args.wait,
                      "sizes": [_fmt_size(s) for s in sizes], "precisions": list(args.precisions), "graphs": graphs,
-                     "providers": providers, "error_sketches": args.error_sketches,
-                     "ground_truth": str(garment_dir) if truth_on else None},
+                     "engines": engines, "providers": providers, "error_sketches": args.error_sketches,
+                     "ground_truth": str(garment_dir) if truth_on else None, "truth_canvas": args.truth,
+                     "planner": not args.no_planner},
         "environment": env,
         "notes": src.notes,
         "rows": rows,
@@ -348,6 +494,9 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
     print("\n" + "\n".join([f"goals at the bundle's precision ({precisions}):"] + goal_lines(result["goals"])))
     for prof in result["profiles"]:
         print("\n".join(profile_lines(prof)))
+    b = result["bundle"]
+    parts = ", ".join(f"{k} graph {v / 1e6:.2f} MB" for k, v in b["graph_bytes"].items())
+    print(f"bundle: {b['bytes'] / 1e6:.2f} MB ({parts})")
     for note in result["notes"]:
         print(f"note: {note}")
     load = result["environment"]
@@ -363,4 +512,10 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
         plot(result["rows"], args.plot, title=f"{m['garment_id']} {m['model_version']}: speed against error "
                                               f"({cpu}, {args.threads} threads, {args.wait} wait)")
         print(f"wrote {args.plot}")
+    if args.pareto is not None:
+        from exporter.bench.plot import plot_pareto
+        m, cpu = result["bundle"], result["environment"]["cpu"]
+        plot_pareto(result["rows"], args.pareto, title=f"{m['garment_id']} {m['model_version']}: latency against "
+                                                        f"error vs ground truth ({cpu}, {args.threads} threads)")
+        print(f"wrote {args.pareto}")
     return 0

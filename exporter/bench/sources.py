@@ -27,13 +27,16 @@ class BenchError(ExportError):
 
 @dataclass(frozen=True)
 class Candidate:
-    """One graph to measure: an ONNX file at a precision on a provider, or PyTorch eager (path None)."""
+    """One graph to measure: an ONNX file at a precision in an engine (ONNX Runtime on a provider, OpenVINO), or
+    PyTorch eager (path None). form: native (ConvTranspose) or rewritten (Conv + DepthToSpace)."""
 
     graph: str
     precision: str
     provider: str
     source: str           # bundle | run | reference | torch
     path: Path | None
+    engine: str = "onnxruntime"
+    form: str = "native"
 
 
 @dataclass
@@ -41,6 +44,9 @@ class Sources:
     reference: dict[str, Path] = field(default_factory=dict)      # graph -> fp32 ONNX reference
     reference_from: str = ""
     graphs: dict[tuple[str, str], tuple[Path, str]] = field(default_factory=dict)  # (graph, precision) -> (path, src)
+    # int8 of the native graph (ConvTranspose kept, quantised as QDQ ConvTranspose): graph -> path. The int8 in
+    # `graphs` is the exporter's, on the Conv + DepthToSpace rewrite (2x the MACs, but ONNX Runtime runs it int8).
+    native_int8: dict[str, Path] = field(default_factory=dict)
     run_dir: Path | None = None
     which: str = "best"
     notes: list[str] = field(default_factory=list)
@@ -180,4 +186,11 @@ def _build_from_run(bundle: Bundle, graphs: list[str], precisions: list[str], wo
             out = folder / precision
             out.mkdir(exist_ok=True)
             src.graphs[(kind, precision)] = (lower_precision(base, precision, out, calibration, cfg), "run")
+        if "int8" in precisions and not rewrites_conv_transpose("fp32"):
+            if calibration is None:
+                calibration = calibration_set(sketch, cfg.sizes, cfg.calibration_per_size, cfg.seed)
+            progress(f"bench: building the native int8 {kind} graph (QDQ ConvTranspose) from the run")
+            out = folder / "int8-native"
+            out.mkdir(exist_ok=True)
+            src.native_int8[kind] = lower_precision(src.reference[kind], "int8", out, calibration, cfg)
     return src

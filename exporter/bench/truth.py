@@ -1,10 +1,14 @@
 """Full-field ground truth for the benchmark: synthetic garments carry the true slopes over the whole garment
 (`fullT/`), so the benchmark can put quantization error (int8 vs fp32) beside model error (fp32 vs truth).
 
-The input is the garment at its training pixel scale (what the model learned) on a canvas of the benchmarked size:
-cropped around the object like `trainer/evaluate.py` does when the canvas is smaller than the padded frame, padded
-with paper when larger; the ground truth is cut and padded the same way. At the training crop size this is exactly
-the evaluation crop of `vtkiosk eval`.
+Two ways to put a garment on a canvas of the benchmarked size, both at the training pixel pitch (what the model
+learned; the kiosk's planner infers at that pitch too):
+- `garment_truth`: the garment itself, cropped around the object like `trainer/evaluate.py` does when the canvas is
+  smaller than the padded frame, padded with paper when larger. At the training crop size this is exactly the
+  evaluation crop of `vtkiosk eval`; at larger sizes most of the canvas is blank paper the model never saw.
+- `filled_truth`: the same garment (spec, seed, profile) synthesised again on a camera frame the size of the canvas,
+  so the garment fills the canvas as a shopper's drawing fills a large panel: same cloth at the same pitch, a larger
+  garment. This is what the kiosk computes at that grid size, and the canvas the benchmark's GT columns use.
 """
 from __future__ import annotations
 
@@ -12,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+import yaml
 
 from kiosk.contract.sketch import PAPER, NetworkInput, network_input
 
@@ -71,3 +77,21 @@ def field_errors(tactile: np.ndarray, truth: Truth, friction_scale: float) -> di
     from trainer.metrics import full_field_metrics
 
     return full_field_metrics(tactile[0, 0], tactile[0, 1], truth.gx, truth.gy, truth.mask, friction_scale)
+
+
+def filled_truth(garment_dir: Path, size: tuple[int, int], workdir: Path) -> Truth | None:
+    """Ground truth of the synthetic garment at `garment_dir`, re-synthesised on a `size` camera frame (written under
+    `workdir`). None for a garment without `synthetic.yaml` or a frame the generator refuses (too tall)."""
+    from trainer.data.synthetic import GarmentSpec, generate_garment
+
+    desc_path = Path(garment_dir) / "synthetic.yaml"
+    if not desc_path.is_file():
+        return None
+    desc = yaml.safe_load(desc_path.read_text())
+    spec = GarmentSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in desc["spec"].items()})
+    profile = desc.get("profile", "easy")  # the easy profile predates the key
+    try:
+        folder = generate_garment(Path(workdir) / f"{size[0]}x{size[1]}", spec, frame=size, profile=profile)
+    except ValueError:
+        return None
+    return garment_truth(folder, size)

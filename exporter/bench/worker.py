@@ -2,7 +2,8 @@
 
 A fresh process per configuration makes peak RSS honest (no earlier session's memory, allocator caches or imported
 torch in the number) and keeps one configuration's threads from disturbing the next. The spec names an ONNX graph
-(+ execution provider) or a training run for PyTorch eager, the input (.npz with `sketch` and `mask`), runs,
+(+ ONNX Runtime execution provider, or OpenVINO: kind `openvino`, with the `outputs` to fetch) or a training run for
+PyTorch eager, the input (.npz with `sketch` and `mask`), runs,
 warm-up runs, threads and the threads' wait policy (`passive` or `active` spinning, for both runtimes); optionally
 `profile` (ONNX Runtime per-op-type time shares).
 
@@ -61,6 +62,14 @@ def _onnx_runner(spec: dict, feed: dict):
     return (lambda: sess.run(outputs, feed)), sess
 
 
+def _openvino_runner(spec: dict, feed: dict):
+    from kiosk.inference.backends import OpenVinoRunner
+    runner = OpenVinoRunner(Path(spec["path"]), int(spec["threads"]))
+    outputs = list(spec["outputs"])
+    runner.run(outputs, feed)  # compile for this shape now, so load_ms includes it (as the kiosk's activation does)
+    return (lambda: runner.run(outputs, feed)), None
+
+
 def _torch_runner(spec: dict, feed: dict):
     import torch
     from exporter.graphs import eager_module
@@ -81,11 +90,14 @@ def measure(spec: dict) -> dict:
         feed = feeds(*unpack(z))
     if spec["kind"] == "torch":
         import torch  # noqa: F401 - imported before the baseline so the baseline includes the framework
+    elif spec["kind"] == "openvino":
+        import openvino  # noqa: F401
     else:
         import onnxruntime  # noqa: F401
     base = _rss_mb("VmRSS")
     t0 = time.perf_counter()
-    run, sess = (_torch_runner if spec["kind"] == "torch" else _onnx_runner)(spec, feed)
+    make = {"torch": _torch_runner, "openvino": _openvino_runner}.get(spec["kind"], _onnx_runner)
+    run, sess = make(spec, feed)
     load_ms = 1e3 * (time.perf_counter() - t0)
     for _ in range(int(spec["warmup"])):
         run()

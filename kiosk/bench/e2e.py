@@ -322,7 +322,8 @@ def summarize(res: Results, status: dict, mem: tuple[float, float] | None) -> di
            "pixels": {"computed": computed, "naive_full_frame_full_graph": naive,
                       "ratio": computed / naive if naive else None},
            "torch_imported": status.get("torch_imported"),
-           "bundles": {g: {k: b[k] for k in ("key", "graphs")} for g, b in status.get("bundles", {}).items()},
+           "bundles": {g: {k: b[k] for k in ("key", "graphs", "engine") if k in b}
+                       for g, b in status.get("bundles", {}).items()},
            "rss_mb": mem[0] if mem else status.get("rss_bytes", 0) / 2**20,
            "peak_rss_mb": mem[1] if mem else None}
     p95 = max(out["visual_ms"]["p95"], out["friction_ms"]["p95"])
@@ -380,7 +381,8 @@ def table(s: dict) -> str:
 def header(s: dict, bundle: Path | None) -> str:
     graphs = "; ".join(f"{g}: " + ", ".join(f"{k} {v['precision']} up to "
                                              f"{max(w for w, _ in v['sizes'])}x{max(h for _, h in v['sizes'])}"
-                                             for k, v in b["graphs"].items()) for g, b in s["bundles"].items())
+                                             for k, v in b["graphs"].items())
+                       + (f"; engine {b['engine']}" if b.get("engine") else "") for g, b in s["bundles"].items())
     load = os.getloadavg()
     return (f"Measured {time.strftime('%Y-%m-%d %H:%M')} on {os.cpu_count()} CPUs (load average "
             f"{load[0]:.1f} at the end), panel 1280x800, {s['finals']} stroke ends and "
@@ -414,6 +416,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
                    help="the daemon's inference.max_resolution (default: the config default, 512)")
     p.add_argument("--no-refine", action="store_true",
                    help="answer stroke ends at full resolution in one step (inference.refine: false)")
+    p.add_argument("--engine", choices=("onnxruntime", "openvino", "auto"), default=None,
+                   help="the daemon's inference.engine.type (default: the config default, onnxruntime)")
     p.add_argument("--incremental", action="store_true", help="also measure window-only recomputation error")
     p.add_argument("--json", type=Path, default=None, help="write all numbers here")
     p.add_argument("--doc", type=Path, default=None, help="write the table into this markdown file's e2e section")
@@ -451,6 +455,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
                                  preview_max_resolution=min(256, args.max_resolution))
             if args.no_refine:
                 inference["refine"] = False
+            if args.engine:
+                inference["engine"] = {"type": args.engine}
             if inference:
                 config = Path(tmp) / "kiosk.yaml"
                 config.write_text(json.dumps({"bundles": [str(bundle.resolve())], "inference": inference}))

@@ -30,43 +30,52 @@ def fp32_bundle(run_dir, tmp_path_factory):
 
 @pytest.mark.slow
 def test_bench_fp32_bundle_with_run(fp32_bundle, run_dir, tmp_path):
-    out_json, out_png = tmp_path / "b.json", tmp_path / "b.png"
+    out_json, out_png, out_pareto = tmp_path / "b.json", tmp_path / "b.png", tmp_path / "p.png"
     # the manifest names its run relative to the export's working folder (or by a hash): name it here
-    proc = vtk("bench", "infer", "--bundle", fp32_bundle, "--run", run_dir, "--precisions", "fp32,int8", "--runs", 3, "--warmup", 1,
-               "--error-sketches", 1, "--json", out_json, "--plot", out_png, "--profile", "--no-progress")
+    proc = vtk("bench", "infer", "--bundle", fp32_bundle, "--run", run_dir, "--precisions", "fp32,int8",
+               "--sizes", "512", "--graphs", "full", "--runs", 2, "--warmup", 1, "--error-sketches", 1,
+               "--json", out_json, "--plot", out_png, "--pareto", out_pareto, "--profile", "--no-progress")
     assert proc.returncode == 0, proc.stderr
-    assert "| graph | size | prec |" in proc.stdout and "goals at the bundle's precision (fp32)" in proc.stdout
-    assert "profile full 512x512 fp32" in proc.stdout
-    assert out_png.read_bytes()[:8] == PNG_MAGIC and out_png.stat().st_size > 10_000
+    assert "| setting | grid | graph | engine |" in proc.stdout
+    assert "goals at the bundle's precision (fp32)" in proc.stdout
+    assert "profile full 512x512 fp32" in proc.stdout and "bundle: " in proc.stdout
+    for png in (out_png, out_pareto):
+        assert png.read_bytes()[:8] == PNG_MAGIC and png.stat().st_size > 10_000
     res = json.loads(out_json.read_text())
-    assert res["schema"] == "vtkiosk-bench-infer/1" and res["settings"]["runs"] == 3
+    assert res["schema"] == "vtkiosk-bench-infer/2" and res["settings"]["runs"] == 2
     assert res["settings"]["wait"] == "passive" and "2 threads, passive wait" in proc.stdout
     assert res["reference"] == "the bundle's own fp32 graphs"
-    rows = res["rows"]
-    # 2 sizes x 2 graphs x (fp32 from the bundle, int8 built from the run, PyTorch eager)
-    assert len(rows) == 12
-    assert {(r["precision"], r["source"]) for r in rows} == {("fp32", "bundle"), ("int8", "run"), ("fp32", "torch")}
-    for r in rows:
-        assert len(r["times_ms"]) == 3 and 0 < r["p50_ms"] <= r["p95_ms"]
+    assert res["bundle"]["bytes"] == fp32_bundle.stat().st_size
+    canvas = [r for r in res["rows"] if r["setting"] == "512x512 canvas"]
+    timed = [r for r in canvas if r["engine"] != "flat"]
+    # every engine x (fp32 native, int8 on the rewrite, int8 native), plus PyTorch eager
+    forms = (("fp32", "native"), ("int8", "rewritten"), ("int8", "native"))
+    assert sorted((r["engine"], r["precision"], r["form"]) for r in timed) == sorted(
+        [(e, p, f) for e in ("onnxruntime", "openvino") for p, f in forms] + [("torch", "fp32", "native")])
+    for r in timed:
+        assert len(r["times_ms"]) == 2 and 0 < r["p50_ms"] <= r["p95_ms"]
         assert 0 < r["base_rss_mb"] < r["peak_rss_mb"]
-        for key in ("tactile_mae", "friction_mae_levels", "friction_max_levels"):
+        for key in ("tactile_mae", "friction_mae_levels", "friction_max_levels", "full_angle_deg"):
             assert math.isfinite(r[key]) and r[key] >= 0
-        assert ("visual_psnr_db" in r) == (r["graph"] == "full")
-        torch = r["provider"] == "torch-eager"
-        assert (r["speedup_vs_torch"] is None) == torch
-    ref = [r for r in rows if r["source"] == "bundle"]
-    for r in ref:  # the reference against itself: exactly zero, PSNR at its 'identical' sentinel
-        assert r["tactile_mae"] == 0.0 and r["friction_mae_levels"] == 0.0 and r["friction_max_levels"] == 0.0
-        if r["graph"] == "full":
-            assert r["visual_psnr_db"] == 99.0
-    eager = [r for r in rows if r["provider"] == "torch-eager"]
-    assert all(r["tactile_mae"] < 1e-4 for r in eager)  # parity: PyTorch and ONNX fp32 agree
-    int8 = [r for r in rows if r["precision"] == "int8"]
-    assert all(r["tactile_mae"] > 0 for r in int8)
-    # full-field ground truth: the synthetic garment fits a 512 canvas at its training scale
-    at512 = [r for r in rows if r["size"] == "512x512"]
-    assert all(math.isfinite(r["full_angle_deg"]) and math.isfinite(r["full_friction_mae"]) for r in at512)
-    assert {r["goal"].split(":")[0] for r in res["goals"]} >= {"full graph (both outputs) at 1536x1536"}
+        assert (r["speedup_vs_torch"] is None) == (r["engine"] == "torch")
+        assert (r["graph_bytes"] is None) == (r["engine"] == "torch") and r["gmac"] > 0
+    native = {r["gmac"] for r in timed if r["form"] == "native"}
+    rewritten = {r["gmac"] for r in timed if r["form"] == "rewritten"}
+    assert len(native) == 1 and len(rewritten) == 1 and 1.5 < rewritten.pop() / native.pop() < 2.5
+    ref = next(r for r in timed if r["source"] == "bundle" and r["engine"] == "onnxruntime")
+    assert ref["tactile_mae"] == 0.0 and ref["friction_mae_levels"] == 0.0 and ref["visual_psnr_db"] == 99.0
+    ov = next(r for r in timed if r["source"] == "bundle" and r["engine"] == "openvino")
+    assert ov["friction_mae_levels"] < 0.1  # same fp32 graph in another engine: rounding only
+    eager = next(r for r in timed if r["engine"] == "torch")
+    assert eager["tactile_mae"] < 1e-4  # parity: PyTorch and ONNX fp32 agree
+    assert all(r["tactile_mae"] > 0 for r in timed if r["precision"] == "int8")
+    flat = [r for r in canvas if r["engine"] == "flat"]
+    assert len(flat) == 1 and flat[0]["full_angle_deg"] > 0 and "p50_ms" not in flat[0]
+    planner = [r for r in res["rows"] if r["setting"].startswith("planner: ")]
+    assert {r["setting"].split(",")[1].strip() for r in planner} == {"physical scale", "panel pixels"}
+    for r in planner:
+        assert math.isfinite(r["full_angle_deg"]) and all(int(v) % 256 == 0 for v in r["size"].split("x"))
+    assert {r["engine"] for r in planner} == {"flat", "torch", "onnxruntime", "openvino"}
     assert res["goals"][0]["met"] is None  # 1536 not measured here
     assert res["profiles"][0]["ops"] and abs(sum(o["share"] for o in res["profiles"][0]["ops"]) - 1) < 1e-6
 
@@ -78,7 +87,7 @@ def test_bench_without_run_uses_reference_bundle(run_dir, fp32_bundle, tmp_path)
     int8 = _export(gone, tmp_path / "g8.vtb", "int8", sizes=((256, 256),))
     shutil.rmtree(gone)  # the bundle's source run is no longer here
     args = ["bench", "infer", "--bundle", int8, "--runs", 2, "--warmup", 0, "--error-sketches", 1, "--no-progress",
-            "--graphs", "tactile", "--json", tmp_path / "a.json"]
+            "--graphs", "tactile", "--engines", "onnxruntime", "--no-planner", "--json", tmp_path / "a.json"]
     proc = vtk(*args)
     assert proc.returncode == 0, proc.stderr
     res = json.loads((tmp_path / "a.json").read_text())
@@ -102,7 +111,7 @@ def test_bench_errors_are_one_line(fp32_bundle, run_dir, tmp_path):
     ck.write_bytes(ck.read_bytes() + b"\0")  # a different checkpoint than the bundle's
     for extra, match in ((["--run", other], "SHA-256"), (["--run", tmp_path / "nope"], "no checkpoints"),
                          (["--providers", "NoSuchExecutionProvider"], "not present"),
-                         (["--sizes", "300"], "multiples of 256")):
+                         (["--sizes", "300"], "multiples of 256"), (["--engines", "tensorflow"], "choose from")):
         proc = vtk("bench", "infer", "--bundle", fp32_bundle, "--runs", 1, "--no-progress", *extra)
         assert proc.returncode == 2, (extra, proc.stdout, proc.stderr)
         assert match in proc.stderr and "Traceback" not in proc.stderr
@@ -123,32 +132,39 @@ def test_pareto_front_is_exactly_the_non_dominated_points(points):
         assert any(points[j][0] <= points[i][0] and points[j][1] <= points[i][1] for j in front)
 
 
-def _row(graph, size, precision, p50, source="bundle", provider="CPUExecutionProvider", **kw):
-    return {"graph": graph, "size": size, "precision": precision, "provider": provider, "source": source,
-            "p50_ms": p50, "p95_ms": p50 * 1.1, "peak_rss_mb": 100.0, **kw}
+def _row(graph, size, precision, p50, source="bundle", engine="onnxruntime", form="native", **kw):
+    provider = {"onnxruntime": "CPUExecutionProvider", "openvino": "CPU", "torch": "torch-eager"}[engine]
+    return {"graph": graph, "size": size, "setting": f"{size} canvas", "precision": precision, "provider": provider,
+            "engine": engine, "form": form, "source": source, "p50_ms": p50, "p95_ms": p50 * 1.1,
+            "peak_rss_mb": 100.0, **kw}
 
 
-def test_goal_verdicts():
-    rows = [_row("full", "1536x1536", "int8", 450.0, speedup_vs_torch=2.5, visual_psnr_db=50.0,
+def test_goal_verdicts_take_the_best_engine_within_the_error_goal():
+    rows = [_row("full", "1536x1536", "int8", 450.0, form="rewritten", speedup_vs_torch=2.5, visual_psnr_db=50.0,
                  friction_mae_levels=0.8),
-            _row("tactile", "512x512", "int8", 40.0, speedup_vs_torch=6.0, friction_mae_levels=1.3),
-            _row("full", "1536x1536", "fp32", 700.0, source="run", speedup_vs_torch=1.6, friction_mae_levels=0.0),
-            _row("full", "1536x1536", "fp32", 1100.0, source="torch", provider="torch-eager")]
-    g = {x["goal"].split(":")[0].split(" <=")[0].split(" >=")[0]: x for x in goals(rows, {"full": "int8",
-                                                                                         "tactile": "int8"})}
-    speed = g["full graph (both outputs) at 1536x1536"]
-    assert speed["met"] is False and speed["value"] == 450.0 and "5.0x the budget" in speed["note"]
-    ratio = next(x for x in g.values() if "PyTorch" in x["goal"])
-    assert ratio["met"] is False and ratio["value"] == 2.5  # the worst of the bundle's own rows
-    fr = next(x for x in g.values() if "friction" in x["goal"])
+            # faster, but outside the error goal: not eligible as "best"
+            _row("full", "1536x1536", "int8", 100.0, engine="openvino", source="run", speedup_vs_torch=11.0,
+                 friction_mae_levels=1.4),
+            _row("full", "1536x1536", "fp32", 300.0, engine="openvino", source="run", speedup_vs_torch=3.7,
+                 friction_mae_levels=0.0),
+            _row("tactile", "512x512", "int8", 40.0, form="rewritten", speedup_vs_torch=6.0, friction_mae_levels=1.3),
+            _row("full", "1536x1536", "fp32", 1100.0, source="torch", engine="torch"),
+            {**_row("full", "1536x1536", "fp32", 10.0, engine="openvino", friction_mae_levels=0.0),
+             "setting": "planner: refine 512, physical scale"}]  # planner rows are not the canvas goal
+    g = goals(rows, {"full": "int8", "tactile": "int8"})
+    speed, ratio, fr, ps = g
+    assert speed["met"] is False and speed["value"] == 300.0 and "openvino fp32 native" in speed["note"]
+    assert "3.3x the budget" in speed["note"]
+    assert ratio["met"] is False and ratio["value"] == 3.7
     assert fr["met"] is False and fr["value"] == 1.3 and "tactile 512x512" in fr["note"]
-    ps = next(x for x in g.values() if "PSNR" in x["goal"])
     assert ps["met"] is True and ps["value"] == 50.0
     assert all(x["met"] is None for x in goals([], {"full": "int8"}))
 
 
 def test_markdown_table_marks_undeclared_sizes_and_missing_values():
-    text = markdown_table([_row("full", "768x768", "fp16", 12.345, declared=False)])
+    text = markdown_table([_row("full", "768x768", "fp16", 12.345, declared=False, graph_bytes=2_500_000),
+                           _row("full", "768x768", "fp32", 50.0, engine="torch")])
     line = text.splitlines()[2]
-    assert "768x768*" in line and "12.3" in line and "| - |" in line
+    assert "768x768*" in line and "12.3" in line and "| - |" in line and "| 2.50 |" in line
+    assert "| torch eager |" in text.splitlines()[3]
     assert len(text.splitlines()[0].split("|")) == len(line.split("|"))

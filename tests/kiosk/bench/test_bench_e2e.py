@@ -2,7 +2,9 @@
 benchmark, never asserted here)."""
 from __future__ import annotations
 
+import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -42,15 +44,21 @@ def test_write_section_replaces_only_the_table(tmp_path):
 
 
 @pytest.mark.slow
-def test_bench_runs_against_a_daemon_process(tmp_path):
+@pytest.mark.parametrize("engine", [None, "openvino"])
+def test_bench_runs_against_a_daemon_process(tmp_path, engine):
+    if engine == "openvino" and importlib.util.find_spec("openvino") is None and os.environ.get("CI") != "true":
+        pytest.skip("OpenVINO (vtkiosk[openvino]) is not installed")
     bundle, trusted = make_bundle(tmp_path)
     out = tmp_path / "e2e.json"
     doc = tmp_path / "perf.md"
     proc = subprocess.run([sys.executable, "-m", "vtkiosk", "bench", "e2e", "--bundle", str(bundle), "--trusted-keys",
-                           str(trusted), "--repeats", "1", "--json", str(out), "--doc", str(doc)], cwd=ROOT,
+                           str(trusted), "--repeats", "1", "--json", str(out), "--doc", str(doc)]
+                          + (["--engine", engine] if engine else []), cwd=ROOT,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     s = json.loads(out.read_text())
+    assert {b["engine"] for b in s["bundles"].values()} == {engine or "onnxruntime"}
+    assert f"engine {engine or 'onnxruntime'}" in proc.stdout
     assert s["torch_imported"] is False
     assert s["finals"] == sum(len(x.actions) for x in sessions())
     assert s["visual_ms"]["n"] == s["finals"] and s["friction_ms"]["n"] >= s["finals_with_inference"] > 0
