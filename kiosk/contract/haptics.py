@@ -28,6 +28,9 @@ from kiosk.contract.validate import check_size
 MIN_FRICTION_SCALE = 1e-4
 # Largest |slope| `gradients_from_normals` returns where the normal lies (almost) in the image plane.
 DEFAULT_MAX_SLOPE = 100.0
+# A device frame is mapped on a grid at least this many times finer than the model's (per axis), then averaged over
+# each panel pixel: squaring a slope doubles its highest frequency, so 2 is the least that keeps it from aliasing.
+SUPERSAMPLE = 2
 
 Normalization = Literal["calibrated", "quantile", "perceptual"]
 NORMALIZATIONS: tuple[str, ...] = ("calibrated", "quantile", "perceptual")
@@ -46,9 +49,9 @@ PERCEPTUAL_DEFAULTS: dict[str, float] = {
     "threshold_level": THRESHOLD_LEVEL,  # level of the first felt step (detection threshold)
     "jnd_ratio": JND_RATIO,              # level ratio of one just-noticeable step
     "steps_low": 3.0,                    # the fabric's lower quartile sits this many steps above the threshold
-    "steps_span": 5.0,                   # ... and its upper quartile this many steps higher
+    "steps_span": 7.0,                   # ... and its upper quartile this many steps higher
     "floor_slope": 0.002,                # slopes below this are flat: natural friction, never stretched
-    "steps_per_octave": 4.0,             # at most this many steps per doubling of slope above the floor
+    "steps_per_octave": 4.5,             # at most this many steps per doubling of slope above the floor
 }
 
 
@@ -308,7 +311,7 @@ def _perceptual(ax: np.ndarray, ay: np.ndarray, c: Mapping[str, float]) -> np.nd
 
 def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, int] | None = None, *,
                  normalization: Normalization = "calibrated", quantile: float = 0.98,
-                 constants: Mapping[str, float] | None = None,
+                 constants: Mapping[str, float] | None = None, supersample: int = SUPERSAMPLE,
                  counter: NonFiniteCounter | None = None) -> np.ndarray:
     """The 8-bit friction map the haptic screen renders (paper Sec. 4.4).
 
@@ -322,9 +325,13 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     no pixel gets more than `steps_per_octave` steps per doubling of its slope above `floor_slope` (below it:
     natural friction). `scale` is ignored. Level = threshold_level * jnd_ratio^steps.
 
-    If `size` = (width, height) is given, the result has the device panel's pixels: when enlarging, the slopes are
-    interpolated (linear) and mapped at panel pixels, so fine ridges keep their period; when shrinking, the friction
-    is mapped, then area-averaged. Quantised: 0 = natural friction, 255 = maximum added friction.
+    If `size` = (width, height) is given, the result has the device panel's pixels, each the mean friction over its
+    area of the surface the slopes describe (interpolated linearly between model pixels): the slopes are
+    interpolated to a grid at least as fine as the panel and `supersample` times finer than the input, mapped
+    there, then area-averaged to the panel. The map is nonlinear (a squared slope doubles a ridge's frequency), so
+    mapping at the model's own pixels aliases its fine ridges into a false coarser texture, and interpolating the
+    friction instead would blur away the fine texture the finger should feel. `supersample=1` maps at the finer
+    of the two grids per axis, as kiosks did before. Quantised: 0 = natural friction, 255 = maximum added friction.
 
     Shape: gx, gy: (H, W) -> (H, W) uint8, or (height, width) uint8 when `size` is given.
 
@@ -336,15 +343,15 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     out_size = None
     if size is not None:
         w, h = check_size(size, "device pixels")
-        if (w, h) != (ax.shape[1], ax.shape[0]):
+        if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) \
+                or not 1 <= supersample <= 8:
+            raise InputError(f"supersample must be an integer from 1 to 8; got {supersample!r}")
+        fine = (max(w, int(supersample) * ax.shape[1]), max(h, int(supersample) * ax.shape[0]))
+        if fine != (ax.shape[1], ax.shape[0]):
+            ax = _resize(ax, fine, cv2.INTER_LINEAR)
+            ay = _resize(ay, fine, cv2.INTER_LINEAR)
+        if fine != (w, h):
             out_size = (w, h)
-            if not (w <= ax.shape[1] and h <= ax.shape[0]):
-                # Enlarging: interpolate the slopes, then map at the panel's pixels. The map is nonlinear (a
-                # squared slope doubles a ridge's frequency), so mapping first and interpolating the friction
-                # would blur away exactly the fine texture the finger should feel.
-                ax = _resize(ax, (w, h), cv2.INTER_LINEAR)
-                ay = _resize(ay, (w, h), cv2.INTER_LINEAR)
-                out_size = None
     if normalization == "calibrated":
         if scale is None or not isinstance(scale, (int, float, np.floating, np.integer)) \
                 or not np.isfinite(scale) or scale <= 0:
@@ -371,7 +378,7 @@ def friction_map(gx: object, gy: object, scale: float | None, size: tuple[int, i
     else:
         raise InputError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {normalization!r}")
     if out_size is not None:
-        # Shrinking: map, then average friction over each panel pixel (what a finger under it integrates).
+        # The mean friction over each panel pixel: the pixel-constant frame closest to the mapped surface.
         zp = _resize(np.ascontiguousarray(zp, dtype=np.float32), out_size, cv2.INTER_AREA)
     return np.rint(np.clip(zp, 0.0, 1.0) * 255.0).astype(np.uint8)
 

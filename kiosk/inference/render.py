@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kiosk.contract.haptics import NonFiniteCounter, friction_map
+from kiosk.contract.haptics import SUPERSAMPLE, NonFiniteCounter, friction_map
 
 Rect = tuple[int, int, int, int]
 
@@ -43,7 +43,7 @@ def intersect(a: Rect, b: Rect) -> Rect | None:
 
 def friction_texture(panel: str, tactile: np.ndarray, region: Rect, clip: Rect, *, scale: float,
                      normalization: str = "calibrated", constants: Mapping[str, float] | None = None,
-                     counter: NonFiniteCounter | None = None) -> Texture | None:
+                     counter: NonFiniteCounter | None = None, supersample: int = SUPERSAMPLE) -> Texture | None:
     """The friction texture of one panel: tactile (1, 2, H, W) at the grid -> the region's screen pixels, cropped to
     `clip` (the visible panel). None when nothing of the region is visible."""
     visible = intersect(region, clip)
@@ -51,7 +51,7 @@ def friction_texture(panel: str, tactile: np.ndarray, region: Rect, clip: Rect, 
         return None
     rx, ry, rw, rh = region
     fm = friction_map(tactile[0, 0], tactile[0, 1], scale, size=(rw, rh), normalization=normalization,
-                      constants=constants, counter=counter)
+                      constants=constants, counter=counter, supersample=supersample)
     vx, vy, vw, vh = visible
     crop = np.ascontiguousarray(fm[vy - ry:vy - ry + vh, vx - rx:vx - rx + vw])
     return Texture(panel, crop, vx, vy)

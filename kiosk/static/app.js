@@ -52,7 +52,7 @@ const state = {
   session: null,        // {startedAt, felt}
   lastActivity: performance.now(),
 };
-const stats = { previews: [], finals: [], refines: [], errors: 0, requests: 0, taps: 0, cancelled: 0,
+const stats = { previews: [], finals: [], refines: [], errors: 0, requests: 0, inFlight: 0, taps: 0, cancelled: 0,
   touches: { draw: 0, feel: 0 }, usage: [], idleResets: 0 };
 let config = null;  // GET /api/page: timings and texts
 const api = { state, stats, shown: null, lastMeta: null, ready: null, config: () => config,
@@ -119,7 +119,8 @@ function fabricName() {
 function updateHint() {
   const t = config.texts;
   let text;
-  if (state.penSeen && config.pen_draws) text = t.hint_pen;
+  // The pen's hint says a finger feels: true in Feel mode only (in Draw mode a finger draws, like the pen).
+  if (state.penSeen && config.pen_draws && state.mode === "feel") text = t.hint_pen;
   else if (state.mode === "draw") text = state.garmentShown ? t.hint_draw : t.hint_draw_empty;
   else text = state.garmentShown ? t.hint_feel : t.hint_feel_empty;
   hintEl.textContent = text;
@@ -166,7 +167,18 @@ function startSession() {
 }
 
 // -- talking to the daemon -----------------------------------------------------------------------------------------
+// `stats.inFlight` counts renders not yet handled to the end (a refinement is asked for before its final's count
+// drops), so 0 means the page shows the answer to its last request.
 async function render(mode) {
+  stats.inFlight++;
+  try {
+    await renderOnce(mode);
+  } finally {
+    stats.inFlight--;
+  }
+}
+
+async function renderOnce(mode) {
   if (!state.garment) return;
   const seq = ++state.seq;
   stats.requests++;
@@ -379,21 +391,41 @@ stage.addEventListener("pointercancel", (ev) => {
   }
 });
 
-for (const b of $("modes").children) b.addEventListener("click", () => setMode(b.dataset.mode));
-$("undo").addEventListener("click", () => {
+// Buttons act when a pointer that went down on them is released over them, not on the browser's click: Chromium
+// swallows the click of a tap that lands while a flick is still coasting (the tap that stops a fling), and a
+// shopper's quick tap on Undo, on Draw or on the next fabric right after a slide is exactly that tap. A click with
+// no pointer behind it (detail 0: the keyboard, assistive technology) still acts.
+const presses = new Map();  // pointerId -> the button it went down on
+function onPress(el, fn) {
+  el.addEventListener("pointerdown", (ev) => { if (ev.button === 0) presses.set(ev.pointerId, el); });
+  el.addEventListener("pointerup", (ev) => {
+    if (presses.get(ev.pointerId) !== el) return;
+    presses.delete(ev.pointerId);
+    const r = el.getBoundingClientRect();  // released over the button: a finger that slid off takes it back
+    if (ev.clientX >= r.left && ev.clientX <= r.right && ev.clientY >= r.top && ev.clientY <= r.bottom) fn();
+  });
+  el.addEventListener("click", (ev) => { if (ev.detail === 0) fn(); });
+}
+// Bubble phase, after the button's own handler: a press released elsewhere (or taken by a scroll) is forgotten.
+for (const type of ["pointerup", "pointercancel"]) {
+  document.addEventListener(type, (ev) => presses.delete(ev.pointerId));
+}
+
+for (const b of $("modes").children) onPress(b, () => setMode(b.dataset.mode));
+onPress($("undo"), () => {
   if (state.strokes.length) state.strokes.pop();
   else state.base = false;
   redraw();
   render("final");
 });
-$("clear").addEventListener("click", () => {
+onPress($("clear"), () => {
   state.strokes = [];
   state.base = false;
   state.visual = null;
   redraw();
   render("final");
 });
-$("reference").addEventListener("click", async () => {
+onPress($("reference"), async () => {
   state.strokes = [];
   state.base = true;
   await loadReference();
@@ -461,7 +493,7 @@ async function loadBundles() {
     const name = document.createElement("span");
     name.textContent = b.display_name;
     btn.appendChild(name);
-    btn.addEventListener("click", () => pickGarment(b.id));
+    onPress(btn, () => pickGarment(b.id));
     garmentsEl.appendChild(btn);
   }
   if (data.default) {

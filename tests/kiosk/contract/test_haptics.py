@@ -1,4 +1,5 @@
 """The haptic math of the runtime contract: analytic surfaces, inverses, and the hard cases."""
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -228,3 +229,32 @@ def test_calibrate_scale():
         calibrate_scale(gx, gx, quantile=0.0)
     with pytest.raises(InputError, match="mask"):
         calibrate_scale(gx, gx, np.ones((2, 2), bool))
+
+
+def _mean_friction_per_pixel(gx, gy, scale, k=16):
+    """Reference device frame: the surface mapped 16x finer than the model's pixels, averaged over each pixel."""
+    h, w = gx.shape
+    fine = friction_map(gx, gy, scale, size=(w * k, h * k), supersample=1).astype(np.float32)
+    return cv2.resize(fine, (w, h), interpolation=cv2.INTER_AREA)
+
+
+@pytest.mark.parametrize("period_px", [3.0, 4.3])
+def test_panel_at_model_pitch_gets_the_mean_friction_not_an_alias(period_px):
+    # Twill-like diagonal ribs (a fundamental and a sharpening second harmonic) on a panel of the model's own pitch.
+    # Squaring the slope doubles its frequencies past what the model's pixels hold; mapping at those pixels folds
+    # them back into a false coarser texture. Each panel pixel must carry the mean friction of the surface under it.
+    n = 96
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    t = 2 * np.pi * ((xx + yy) / np.sqrt(2)) / period_px
+    g = 0.05 * (-np.sin(t) - 0.5 * np.sin(2 * t + 0.6)) / np.sqrt(2)
+    ref = _mean_friction_per_pixel(g, g, 0.003)
+    inner = (slice(4, -4), slice(4, -4))
+    err = np.abs(friction_map(g, g, 0.003, size=(n, n)).astype(float) - ref)[inner].mean()
+    point = np.abs(friction_map(g, g, 0.003, size=(n, n), supersample=1).astype(float) - ref)[inner].mean()
+    assert err < 8.0 and point > 4 * err  # levels of 255; mapping at the model's pixels is off by 40-60
+
+
+@pytest.mark.parametrize("bad", [0, 9, 1.5, True, "2"])
+def test_friction_rejects_bad_supersample(bad):
+    with pytest.raises(InputError, match="supersample"):
+        friction_map(np.zeros((2, 2)), np.zeros((2, 2)), 0.1, size=(2, 2), supersample=bad)
