@@ -41,6 +41,7 @@ MAX_CONFIG_BYTES = 1 << 20
 MAX_DEPTH = 32   # configs nest 3 or 4 levels deep
 _NUMBER_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 _NONE_TEXT = ("", "null", "none", "~")
+_PLAIN_KEY_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}\Z")
 
 
 def load_yaml(path: str | Path, *, error: type[Exception], what: str = "config") -> dict[str, Any]:
@@ -236,6 +237,13 @@ def _owner(cls: type, parts: list[str]) -> type:
     return cls
 
 
+def _key_text(key: Any) -> str:
+    """A key as an error shows it: as written when it is a plain name, quoted and cut short otherwise (a key from
+    a hostile file must not break the one-line message)."""
+    text = str(key)
+    return text if _PLAIN_KEY_RE.match(text) else ascii(text)[:40]
+
+
 def _describe(value: Any) -> str:
     if isinstance(value, bool):
         return "a boolean"
@@ -264,7 +272,7 @@ def _build(cls: type, data: Any, prefix: str, ctx: _Ctx, internal: Mapping[str, 
         raise ctx.error(f"{where or 'the top level'} must be a mapping{' of sections' if not where else ''}, "
                         f"got {_describe(data)}")
     names = _loadable(cls)
-    unknown = sorted(str(k) for k in data if k not in names)
+    unknown = sorted(_key_text(k) for k in data if k not in names)
     if unknown:
         raise ctx.error(f"unknown key(s){f' in {where}' if where else ''}: {', '.join(unknown)} "
                         f"(valid: {', '.join(names)})")
@@ -343,7 +351,7 @@ def _coerce(key: str, value: Any, hint: Any, ctx: _Ctx) -> Any:
         for k, v in value.items():
             if not isinstance(k, str):
                 raise err(f"{key} keys must be strings, got {_describe(k)}")
-            out[k] = v if vt is Any else _coerce(f"{key}.{k}", v, vt, ctx)
+            out[k] = v if vt is Any else _coerce(f"{key}.{_key_text(k)}", v, vt, ctx)
         return out
     if hint is bool:
         if not isinstance(value, bool):

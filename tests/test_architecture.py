@@ -94,6 +94,39 @@ def test_imports_follow_the_arrows():
     assert not wrong, "imports against docs/architecture.md:\n" + "\n".join(wrong)
 
 
+# Inside kiosk/service, the daemon wires the parts; a part never reaches back into the wiring, and the parts that
+# run a job (jobs, frames, bundles) never import the HTTP route table.
+SERVICE_WIRING = {"kiosk.service.daemon": {"kiosk/service/daemon.py", "kiosk/service/cli.py"},
+                  "kiosk.service.routes": {"kiosk/service/daemon.py", "kiosk/service/routes.py"}}
+
+
+def service_allowed(path: Path, target: str) -> bool:
+    """Other rooms (the study, the demo) may use the daemon whole; this only rules kiosk/service itself."""
+    here = path.relative_to(ROOT).as_posix()
+    users = next((v for k, v in SERVICE_WIRING.items() if target == k or target.startswith(k + ".")), None)
+    return users is None or not here.startswith("kiosk/service/") or here in users
+
+
+def test_the_service_parts_never_import_the_wiring():
+    wrong = [f"{p.relative_to(ROOT)}:{line} imports {target}"
+             for p in sources() for line, target in imports_of(p) if not service_allowed(p, target)]
+    assert not wrong, "kiosk.service.daemon wires the parts; they must not import it (or the routes):\n" + \
+        "\n".join(wrong)
+
+
+@pytest.mark.parametrize("code, target, ok", [
+    ("kiosk/service/frames.py", "kiosk.service.daemon", False),
+    ("kiosk/service/bundles.py", "kiosk.service.routes", False),
+    ("kiosk/service/jobs.py", "kiosk.service.daemon", False),
+    ("kiosk/study/runtime.py", "kiosk.service.daemon", True),
+    ("kiosk/service/cli.py", "kiosk.service.daemon", True),
+    ("kiosk/service/daemon.py", "kiosk.service.routes", True),
+    ("kiosk/service/routes.py", "kiosk.service.jobs", True),
+])
+def test_the_service_checker_tells_right_from_wrong(code, target, ok):
+    assert service_allowed(ROOT / code, target) is ok
+
+
 @pytest.mark.parametrize("code, target, ok", [
     ("kiosk/contract/sketch.py", "kiosk.service.daemon", False),
     ("kiosk/service/daemon.py", "trainer.loop", False),

@@ -91,3 +91,30 @@ def test_demo_serves_every_catalogue_garment(tmp_path):
     served = proc.stdout.split("kiosk serving ", 1)[1].split(" at http", 1)[0]
     for e in load_index(CATALOGUE):
         assert e.id in served, (e.id, served)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["garments"][0].update(step="many"), r"garments\[0\]\.step must be an integer"),
+    (lambda d: d["garments"][0].update(colour="red"), r"unknown key\(s\) in garments\[0\]: colour"),
+    (lambda d: d["garments"][0].pop("sha256"), r"missing key\(s\) in garments\[0\]: sha256"),
+    (lambda d: d.update(garments="all"), "garments must be a list"),
+])
+def test_a_broken_index_is_one_line_naming_file_and_key(tmp_path, edit, message):
+    folder = tmp_path / "catalogue"
+    folder.mkdir()
+    doc = yaml.safe_load((CATALOGUE / "catalogue.yaml").read_text())
+    edit(doc)
+    (folder / "catalogue.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(CatalogueError, match=message) as err:
+        load_index(folder)
+    assert str(err.value).startswith(f"{folder / 'catalogue.yaml'}: ") and "\n" not in str(err.value)
+
+
+def test_the_check_command_refuses_a_broken_index_in_one_line(tmp_path):
+    folder = tmp_path / "catalogue"
+    folder.mkdir()
+    (folder / "catalogue.yaml").write_text("garments: [" * 200 + "]" * 200)
+    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "catalogue", "check", "--folder", str(folder)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "not valid YAML" in proc.stderr

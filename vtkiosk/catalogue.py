@@ -17,11 +17,12 @@ import json
 import shlex
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
+from kiosk.config import loader
 from kiosk.contract.garment import garment_id
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,15 +75,20 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+@dataclass(frozen=True)
+class Index:
+    """`catalogue.yaml`: read by the project's one config loader, so a hand edit that breaks it is one line
+    naming the key."""
+
+    garments: tuple[Entry, ...]
+    note: str = field(default="", metadata={"empty_ok": True})
+
+
 def load_index(folder: Path = CATALOGUE) -> list[Entry]:
     path = Path(folder) / INDEX
     if not path.is_file():
         raise CatalogueError(f"{path}: no catalogue index")
-    try:
-        doc = yaml.safe_load(path.read_text())
-        return [Entry(**e) for e in doc["garments"]]
-    except (yaml.YAMLError, KeyError, TypeError) as exc:
-        raise CatalogueError(f"{path}: not a catalogue index ({exc})") from exc
+    return list(loader.load(Index, path, error=CatalogueError, what="catalogue index").garments)
 
 
 def _write_index(folder: Path, entries: list[Entry]) -> None:

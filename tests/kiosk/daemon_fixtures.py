@@ -9,7 +9,8 @@ import urllib.request
 from pathlib import Path
 
 from kiosk.service.config import config_from_mapping
-from kiosk.service.daemon import KioskDaemon, parse_frame
+from kiosk.service.daemon import KioskDaemon
+from kiosk.service.frames import parse_frame
 
 BOX = [[[300, 200], [800, 200], [800, 600], [300, 600], [300, 200]]]
 

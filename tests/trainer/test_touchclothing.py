@@ -120,3 +120,17 @@ def test_edited_sketch_folder_needs_only_a_sketch(tmp_path):
         shutil.rmtree(g / sub)
     loaded = load_garment(g)
     assert loaded.edited and loaded.visual is None and loaded.mask.any()
+
+
+@pytest.mark.parametrize("text, match", [
+    ("frame: [unclosed\n", "not valid YAML"),
+    ("[" * 500 + "]" * 500, "not valid YAML"),
+    ("- a list\n", "top level must be a mapping"),
+    ("frame: [12, x]\n", "'frame' must be \\[width, height\\]"),
+])
+def test_a_broken_garment_description_is_one_line_naming_the_file(tmp_path, text, match):
+    g = write_real_layout(tmp_path, touches=(1, 1, 1))
+    (g / "synthetic.yaml").write_text(text)
+    with pytest.raises(DatasetError, match=match) as err:
+        load_garment(g)
+    assert "\n" not in str(err.value) and "synthetic.yaml" in str(err.value)

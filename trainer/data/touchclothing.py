@@ -16,9 +16,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from trainer.errors import TrainerError
+from kiosk.config import loader
 from kiosk.contract.haptics import calibrate_scale
 
 PUBLISHED_FRAME = (1280, 960)  # camera frame (width, height)
@@ -181,13 +181,9 @@ def _read_meta(root: Path) -> dict:
     path = root / "synthetic.yaml"
     if not path.is_file():
         return {}
-    try:
-        meta = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise DatasetError(f"{path}: not valid YAML ({exc})") from exc
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{path}: expected a mapping at the top level")
-    return meta
+    # A dataset's self-description, not a configuration: open-ended keys, of which this loader reads a few and
+    # checks those where it reads them; the one loader's reader makes a broken file one line naming it.
+    return loader.load_yaml(path, error=DatasetError, what="garment description")
 
 
 def _frame_and_offset(meta: dict, padded: int, root: Path) -> tuple[tuple[int, int], tuple[int, int]]:

@@ -96,6 +96,8 @@ def test_a_full_document_builds_typed_frozen_values(tmp_path):
     ({"name": "x", "code": "zz"}, "code invalid literal"),
     ({"name": "x", "other": {"level": 10}}, "other: level must be at most 9"),
     ({"name": "x", "digest": "abc"}, r"unknown key\(s\): digest"),
+    ({"name": "x", "odd\nkey": 1}, r"unknown key\(s\): 'odd\\nkey' \(valid"),       # quoted: still one line
+    ({"name": "x", "extra": {"a\nb": "z"}}, r"extra\.'a\\nb' must be an integer"),
     ([1, 2], "the top level must be a mapping"),
 ])
 def test_errors_name_the_key_in_one_line(doc, message):

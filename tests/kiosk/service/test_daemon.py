@@ -106,11 +106,11 @@ def test_a_new_request_supersedes_queued_previews_and_refinements(daemon):
     try:
         send("other", "preview", client="another-page")  # another client's preview is not touched
         send("preview", "preview")
-        assert wait_for(lambda: len(daemon._jobs) == 2, 5.0)
+        assert wait_for(lambda: len(daemon.jobs) == 2, 5.0)
         send("refine", "refine")  # replaces the queued preview of the same client
-        assert wait_for(lambda: "preview" in answers and len(daemon._jobs) == 2, 5.0)
+        assert wait_for(lambda: "preview" in answers and len(daemon.jobs) == 2, 5.0)
         send("final", "final", strokes=BOX + [[[400, 300], [600, 500]]])  # replaces the queued refinement
-        assert wait_for(lambda: "refine" in answers and len(daemon._jobs) == 2, 5.0)
+        assert wait_for(lambda: "refine" in answers and len(daemon.jobs) == 2, 5.0)
     finally:
         daemon.handle_control({"op": "debug.hang", "on": False})
     for t in threads:
@@ -121,7 +121,7 @@ def test_a_new_request_supersedes_queued_previews_and_refinements(daemon):
 
 
 def test_unchanged_sketch_costs_no_inference_and_undo_hits_the_cache(daemon):
-    runs = daemon.m_graph_runs
+    runs = daemon.series.graph_runs
     render(daemon)
     full_runs = runs.value(graph="full")
     status, meta, _ = render(daemon)
@@ -164,7 +164,7 @@ def test_nonfinite_outputs_keep_the_last_good_frame(daemon):
     status, meta, visuals = render(daemon, BOX + [[[400, 300], [600, 500]]])
     assert status == 200 and meta["panels"][0]["status"] == "kept" and not visuals
     assert "last good" in meta["panels"][0]["notice"] and any("last good" in n for n in meta["notices"])
-    assert daemon.m_inference_errors.value(reason="nonfinite") == 1
+    assert daemon.series.inference_errors.value(reason="nonfinite") == 1
     time.sleep(0.2)
     np.testing.assert_array_equal(device_frame(daemon), good)  # the finger still feels the last good frame
     daemon.handle_control({"op": "debug.nonfinite", "on": False})
@@ -184,12 +184,12 @@ def test_a_poisoned_bundle_never_reaches_screen_or_device(tmp_path):
         from kiosk.bundle.signature import load_trusted_keys
 
         lb = LoadedBundle(open_bundle(bad, load_trusted_keys(trusted), workdir=tmp_path / "w"))
-        d._bundles = {**d._bundles, lb.garment_id: lb}
+        d.bundle_set.serving = {**d.bundle_set.serving, lb.garment_id: lb}
         status, meta, visuals = render(d, garment="poison-coat")
         assert meta["panels"][0]["status"] == "kept" and not visuals and meta["device_frame"] is not None
         time.sleep(0.2)
         assert not device_frame(d).any()
-        assert d.m_inference_errors.value(reason="nonfinite") == 1
+        assert d.series.inference_errors.value(reason="nonfinite") == 1
     finally:
         d.stop()
 
@@ -208,12 +208,12 @@ def test_device_loss_degrades_to_visual_only_and_recovers(daemon):
     assert http(daemon.server.url + "healthz")[0] == 503
     daemon.handle_control({"op": "debug.replug"})
     assert wait_for(lambda: daemon.device.up, 10.0)
-    want = daemon._textures["main"].texture()
+    want = daemon.frames.textures["main"].texture()
     x, y, w, h = want.rect
     assert wait_for(lambda: np.array_equal(device_frame(daemon)[y:y + h, x:x + w], want.pixels), 5.0)
     assert not daemon.notices()
     assert wait_for(lambda: daemon.health.run().checks["device"].ok, 5.0)
-    assert daemon.m_device_errors.value(kind="link") >= 1
+    assert daemon.series.device_errors.value(kind="link") >= 1
 
 
 def test_a_hung_inference_loop_fails_health_and_recovers(tmp_path, bundle):
@@ -263,7 +263,7 @@ def test_reload_swaps_a_new_version_and_keeps_the_old_on_failure(tmp_path):
             assert not reply["ok"] and reason in reply["error"], reply
             assert "@v2#" in d.bundles["denim-shorts"].key  # the old one stays
             assert render(d)[0] == 200
-        assert d.m_reloads.value(result="kept") + d.m_reloads.value(result="failed") == 2
+        assert d.series.reloads.value(result="kept") + d.series.reloads.value(result="failed") == 2
         status = send_control(sock, {"op": "status"})
         assert status["ok"] and "denim-shorts" in status["bundles"] and "torch_imported" in status
     finally:
@@ -324,10 +324,10 @@ def test_study_hooks(daemon):
     # A study trial: reference visuals, model tactile on two half panels, put on the device through show().
     panels = tuple(Panel(s, (0 if s == "left" else 640, 0, 640, 800), "denim-shorts", visual="reference",
                          sketch="reference", half=s) for s in ("left", "right"))
-    runs = daemon.m_graph_runs.value(graph="visual") + daemon.m_graph_runs.value(graph="full")
+    runs = daemon.series.graph_runs.value(graph="visual") + daemon.series.graph_runs.value(graph="full")
     result = daemon.show(Scene(panels, (1280, 800)))
     assert [p.plan.graph for p in result.panels] == ["tactile", "tactile"]
-    assert daemon.m_graph_runs.value(graph="visual") + daemon.m_graph_runs.value(graph="full") == runs
+    assert daemon.series.graph_runs.value(graph="visual") + daemon.series.graph_runs.value(graph="full") == runs
     assert daemon.wait_commit(result.device_frame, 5.0).status == "committed"
     left, right = (p.friction.texture() for p in result.panels)
     assert left.rect[0] + left.rect[2] <= 640 <= right.rect[0]  # each texture stays in its panel

@@ -122,7 +122,7 @@ def test_drawing_shows_the_garment_and_the_device_feels_it_underneath(page, daem
     assert commit is not None and commit.status == "committed"
     assert shown["friction"] == [max(x, 0), max(y, 0), min(x + w, 1280) - max(x, 0), min(y + h, 800) - max(y, 0)]
     fx, fy, fw, fh = shown["friction"]
-    texture = daemon._textures["main"].texture()
+    texture = daemon.frames.textures["main"].texture()
     frame = daemon.device.emulator.active_frame
     np.testing.assert_array_equal(frame[fy:fy + fh, fx:fx + fw], texture.pixels)
     outside = frame.copy()

@@ -162,14 +162,14 @@ def get(url: str) -> bytes:
 
 
 def render_requests(d) -> int:
-    return d.m_requests.snapshot(route="/api/render")[2]
+    return d.series.requests.snapshot(route="/api/render")[2]
 
 
 def counters(d) -> dict:
     """What the daemon did: render requests, frames, graph runs, device commits, the committed frame itself."""
     return {"render_requests": render_requests(d),
-            "frames": sum(d.m_frames.value(kind=k) for k in ("preview", "final", "refine", "full")),
-            "graph_runs": sum(d.m_graph_runs.value(graph=g) for g in ("full", "visual", "tactile")),
+            "frames": sum(d.series.frames.value(kind=k) for k in ("preview", "final", "refine", "full")),
+            "graph_runs": sum(d.series.graph_runs.value(graph=g) for g in ("full", "visual", "tactile")),
             "device_commits": d.device.state()["frames_committed"],
             "device_frame": hashlib.sha256(get(d.server.url + "api/debug/device-frame")).hexdigest()}
 
@@ -314,7 +314,7 @@ def test_the_catalogue_switches_garment_and_names_the_fabric(touch, daemon):
     assert shown["status"] == "ok" and js(page, "window.vtkiosk.lastMeta.plan.panels[0].bundle") == "test-coat"
     assert js(page, "window.vtkiosk.state.mode") == "feel" and page.inner_text("#fabric-name") == "Test coat"
     assert page.inner_text("#hint") == js(page, "window.vtkiosk.config().texts.hint_feel")
-    coat = daemon._textures["main"].texture().pixels.copy()
+    coat = daemon.frames.textures["main"].texture().pixels.copy()
     # The other garment: its own outline and model, another friction frame under the finger.
     n = js(page, "window.vtkiosk.stats.finals.length")
     page.tap("#garments button[data-id='denim-shorts']")
@@ -325,7 +325,7 @@ def test_the_catalogue_switches_garment_and_names_the_fabric(touch, daemon):
     assert daemon.wait_commit(shown["device_frame"], 10.0).status == "committed"
     fx, fy, fw, fh = shown["friction"]
     felt = daemon.device.emulator.active_frame[fy:fy + fh, fx:fx + fw]
-    np.testing.assert_array_equal(felt, daemon._textures["main"].texture().pixels)
+    np.testing.assert_array_equal(felt, daemon.frames.textures["main"].texture().pixels)
     assert felt.shape != coat.shape or not np.array_equal(felt, coat)
 
 

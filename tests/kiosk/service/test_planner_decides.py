@@ -18,7 +18,7 @@ def daemon(tmp_path):
 
 
 def test_the_graph_that_runs_is_the_planned_one(daemon):
-    runs = daemon.m_graph_runs
+    runs = daemon.series.graph_runs
     status, meta, _ = render(daemon)
     assert status == 200 and meta["plan"]["panels"][0]["graph"] == "full" and runs.value(graph="full") == 1
     # Unchanged sketch: the plan reuses both outputs and runs nothing; the daemon runs nothing either.
@@ -29,7 +29,7 @@ def test_the_graph_that_runs_is_the_planned_one(daemon):
 
 
 def test_a_vanished_cache_entry_goes_back_to_the_planner_not_to_a_second_decision(daemon):
-    runs = daemon.m_graph_runs
+    runs = daemon.series.graph_runs
     assert render(daemon)[0] == 200
     # The cache claims to hold everything while holding nothing: what a reload emptying it mid-frame looks like.
     daemon.cache.clear()
