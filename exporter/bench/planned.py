@@ -1,6 +1,6 @@
 """The planner's own settings as benchmark rows: what the kiosk actually runs for the bundle's garment.
 
-The bundle's reference sketch is laid out on the default haptic panel (`kiosk.service.panels`) as the attract screen
+The bundle's reference sketch is laid out on the default haptic panel (`kiosk.contract.panels`) as the attract screen
 does, and the kiosk's planner (`kiosk.inference.scene.Planner`, kiosk config defaults for the resolutions) plans it
 twice: the quick first answer at stroke end (preview resolution) and the refinement, at physical scale (panel pitch
 against the bundle's pitch) and without it (legacy: the panel's pixels). Each plan's network input is what gets timed.
@@ -38,7 +38,7 @@ def planned_inputs(bundle, *, max_resolution: int = 512, preview_max_resolution:
     physical scale and at panel pixels. `bundle`: an opened `kiosk.bundle.archive.Bundle`."""
     from kiosk.inference.engine import LoadedBundle
     from kiosk.inference.scene import Panel, Planner, Scene, SketchInput
-    from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
+    from kiosk.contract.panels import DEFAULT_PANEL, KNOWN_PANELS
 
     panel_spec = KNOWN_PANELS[DEFAULT_PANEL]
     loaded = LoadedBundle(bundle)

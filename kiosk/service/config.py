@@ -22,7 +22,7 @@ from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRID_MULTIPLE
 from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
-from kiosk.service.panels import DEFAULT_PANEL, KNOWN_PANELS
+from kiosk.contract.panels import DEFAULT_PANEL, KNOWN_PANELS
 
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider"}
@@ -134,7 +134,7 @@ class InferenceConfig:
 
 @dataclass(frozen=True)
 class PanelConfig:
-    """The haptic screen's physical size, so texture is rendered at true scale (`kiosk.service.panels`).
+    """The haptic screen's physical size, so texture is rendered at true scale (`kiosk.contract.panels`).
 
     model: a known panel (its pixels and size); width_mm/height_mm and width_px/height_px, when given, override it
     (state all four for a panel not in the table). Pixels must be square within 3 %.
