@@ -27,7 +27,7 @@ from trainer.config import config_from_dict
 from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.metrics import full_field_scores, visual_scores
-from trainer.references import object_colour, oracle, paint
+from trainer.references import WEAVE_CUTOFF, object_colour, oracle, paint, weave_period_px, weave_split
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
 from trainer.texture_distance import channel_banks, fb_sifid_banks, fb_sifid_channels
@@ -72,6 +72,7 @@ class Context:
         self.patches = extract_patches(self.g, "test", crop_origin=self.origin, crop_size=(self.side, self.side),
                                        mode="centre")
         self._oracle = None
+        self._weave = None
         self._banks: dict[str, list[np.ndarray]] = {}
 
     def banks(self, which: str) -> list[np.ndarray]:
@@ -93,6 +94,13 @@ class Context:
         if self._oracle is None:
             self._oracle = oracle(self.g) or False
         return self._oracle or None
+
+    def weave_oracles(self):
+        """(shape-oracle, texture-oracle) or None (no oracle, or no stated weave period)."""
+        if self._weave is None:
+            o = self.oracle()
+            self._weave = (weave_split(self.g, o) if o is not None else None) or False
+        return self._weave or None
 
 
 def find_unseen(g: Garment, side: int) -> list[Unseen]:
@@ -235,6 +243,12 @@ def reference_predictions(ctx: Context) -> dict[str, tuple]:
         tac = torch.from_numpy(np.stack([ctx.crop(o.gx), ctx.crop(o.gy)]))[None]
         refs["oracle"] = (None, tac, None, {"sensor_blur_px": o.sigma_px, "sensor_fit_mse": o.fit_mse,
                                             "head_precision": o.precision})
+    w = ctx.weave_oracles()
+    if w is not None:
+        period = weave_period_px(ctx.g)
+        for name, wo in zip(("shape-oracle", "texture-oracle"), w):
+            tac = torch.from_numpy(np.stack([ctx.crop(wo.gx), ctx.crop(wo.gy)]))[None]
+            refs[name] = (None, tac, None, {"weave_period_px": period, "weave_cutoff_sigma_px": WEAVE_CUTOFF * period})
     return refs
 
 

@@ -11,6 +11,13 @@
   keep their output heads in fp32; "fp16" for fp16 bundles). The friction map's 8-bit quantisation is applied by
   the friction metric to every row alike. The visual oracle would be the photo itself (PSNR inf, SSIM 1), so the
   oracle row has tactile columns only.
+- `shape-oracle`: the oracle with the fabric's weave removed (Gaussian low-pass at half the weave period, which leaves
+  < 1 % of the weave's fundamental): everything a model could know about folds, seams and stitching, nothing about
+  where the weave's ridges sit. The best a model can do where it never saw the weave's phase and renders none.
+- `texture-oracle`: the shape-oracle plus the oracle's own weave with its Fourier phases randomised: the weave's
+  spectrum exactly right, its position unknown. On average over phases this is what a perfect texture model (a GAN
+  at its best) scores off the touches: a wrongly placed ridge costs more on a per-pixel angle than no ridge, so this
+  row can sit above flat. Both need the weave period (synthetic.yaml's fabric.period_mm and pixel_pitch_mm).
 """
 from __future__ import annotations
 
@@ -21,10 +28,12 @@ import numpy as np
 
 from trainer.data.touchclothing import Garment
 
-REFERENCE_ROWS = ("flat", "mean-colour", "oracle")
+REFERENCE_ROWS = ("flat", "mean-colour", "oracle", "shape-oracle", "texture-oracle")
 BLUR_SIGMAS = tuple(np.round(np.arange(0.0, 4.01, 0.25), 2))   # px; candidates for the sensor's transfer
 FIT_TOLERANCE = 0.01   # relative MSE within which a smaller blur is preferred
 HEAD_RANGE = 1.0   # tanh
+WEAVE_CUTOFF = 0.5   # shape-oracle's low-pass sigma, in weave periods
+PHASE_SEED = 0       # texture-oracle's random phases: fixed, so the row is reproducible
 
 
 @dataclass
@@ -88,6 +97,48 @@ def oracle(g: Garment, precision: str = "float32") -> Oracle | None:
     gx = exported_head(_blur(ft.gx, sigma), g.mask, precision)
     gy = exported_head(_blur(ft.gy, sigma), g.mask, precision)
     return Oracle(gx, gy, sigma, mse, precision)
+
+
+def weave_period_px(g: Garment) -> float | None:
+    """The fabric's weave period in padded-frame pixels, when the garment states it; None otherwise."""
+    pitch = g.pixel_pitch_mm
+    fabric = g.meta.get("fabric")
+    period = fabric.get("period_mm") if isinstance(fabric, dict) else None
+    try:
+        period = float(period)
+    except (TypeError, ValueError):
+        return None
+    if pitch is None or not (np.isfinite(period) and np.isfinite(pitch) and period > 0 and pitch > 0):
+        return None
+    return period / pitch
+
+
+def _random_phase(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """`a` with its amplitude spectrum kept and every Fourier phase drawn uniformly (a real field again)."""
+    f = np.fft.rfft2(a.astype(np.float64))
+    return np.fft.irfft2(np.abs(f) * np.exp(1j * rng.uniform(0.0, 2.0 * np.pi, f.shape)), s=a.shape)
+
+
+def weave_split(g: Garment, o: Oracle) -> tuple[Oracle, Oracle] | None:
+    """(shape-oracle, texture-oracle) from the oracle `o`; None when the garment states no weave period."""
+    period = weave_period_px(g)
+    if period is None:
+        return None
+    sigma = WEAVE_CUTOFF * period
+    rng = np.random.default_rng(PHASE_SEED)
+    m = g.mask.astype(np.float32)
+    shape, texture = [], []
+    for a in (o.gx, o.gy):
+        low = _blur(a, sigma)
+        weave = (a - low) * m
+        placed = _random_phase(weave, rng)
+        # a new phase spreads the weave over the whole frame; keep its energy on the object what it was
+        want, got = float((weave ** 2).sum()), float((placed[g.mask] ** 2).sum())
+        weave = placed * (np.sqrt(want / got) if got > 0.0 else 0.0)
+        shape.append(exported_head(low, g.mask, o.precision))
+        texture.append(exported_head(low + weave, g.mask, o.precision))
+    return (Oracle(shape[0], shape[1], o.sigma_px, o.fit_mse, o.precision),
+            Oracle(texture[0], texture[1], o.sigma_px, o.fit_mse, o.precision))
 
 
 def paint(colour: np.ndarray, mask: np.ndarray) -> np.ndarray:

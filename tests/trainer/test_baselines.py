@@ -129,3 +129,19 @@ def test_baked_spectral_norm_gives_the_same_outputs_and_nothing_left_to_recomput
         after = g(s, m)
     assert not any(parametrize.is_parametrized(x) for x in g.modules())
     assert all(torch.equal(a, b) for a, b in zip(before, after))
+
+
+def test_spade_normalises_with_the_inputs_own_statistics_in_eval_as_in_training():
+    """GauGAN's norm evaluated with running statistics drifted from any one crop's and broke the baseline: the
+    evaluated SPADE must compute what it computed while training, whatever crops it saw before."""
+    from trainer.models.spade_generator import SPADE
+    torch.manual_seed(0)
+    spade = SPADE(channels=4, label_nc=1, hidden=4).train()
+    seg = torch.rand(1, 1, 16, 16)
+    with torch.no_grad():
+        for scale in (0.1, 10.0, 3.0):                    # crops with very different statistics
+            spade(scale * torch.randn(1, 4, 16, 16) + scale, seg)
+        x = 5.0 * torch.randn(1, 4, 16, 16) - 2.0
+        trained = spade(x, seg)
+        evaluated = spade.eval()(x, seg)
+    assert torch.allclose(trained, evaluated, atol=1e-6)

@@ -17,7 +17,7 @@ from trainer.evaluate import Context, Nets, find_unseen, gap_closed, reference_p
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.loop import Trainer
 from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
-from trainer.references import exported_head, fit_sensor_blur, oracle
+from trainer.references import Oracle, exported_head, fit_sensor_blur, oracle, weave_period_px, weave_split
 from trainer.sampling import patches_to_tensors
 from vtkiosk.cli import main as vtkiosk
 
@@ -139,7 +139,7 @@ def test_oracle_scores_at_least_as_well_as_any_prediction_on_the_full_field(garm
     ctx = _ctx(garment)
     nets = Nets(load_config("tiny").pretrained)
     refs = reference_predictions(ctx)
-    assert set(refs) == {"flat", "mean-colour", "oracle"}
+    assert set(refs) == {"flat", "mean-colour", "oracle", "shape-oracle", "texture-oracle"}
     o, _ = score(ctx, nets, None, refs["oracle"][1])
     tx, ty = ctx.truth()
     rng = np.random.default_rng(0)
@@ -153,6 +153,58 @@ def test_oracle_scores_at_least_as_well_as_any_prediction_on_the_full_field(garm
         s, _ = full_field_scores(c[0], c[1], tx, ty, ctx.obj, ctx.inside, ctx.scale, ctx.origin)
         for k in FULL:
             assert o[k] <= s[k] + 1e-9, (name, k, o[k], s[k])
+
+
+def _band_power(a: np.ndarray, period: float) -> float:
+    """Power of `a` in the ring of spatial frequencies within 25 % of 1/period."""
+    f = np.abs(np.fft.fft2(a)) ** 2
+    fy, fx = np.meshgrid(np.fft.fftfreq(a.shape[0]), np.fft.fftfreq(a.shape[1]), indexing="ij")
+    r = np.hypot(fx, fy)
+    return float(f[(r > 0.75 / period) & (r < 1.25 / period)].sum())
+
+
+def test_weave_oracles_split_the_oracle_into_its_shape_and_an_unplaced_weave(garment):
+    """A fold (smooth) plus a weave (6 px period): the shape-oracle keeps the fold and drops the weave; the
+    texture-oracle keeps the weave's spectrum but not its place, so it scores worse than the shape-oracle."""
+    g = load_garment(garment.root)
+    period = 6.0
+    g.meta = dict(g.meta, pixel_pitch_mm=0.5, fabric={"period_mm": period * 0.5})
+    assert weave_period_px(g) == pytest.approx(period)
+    n = g.mask.shape[0]
+    xx = np.mgrid[0:n, 0:n][1].astype(np.float32)
+    fold = 0.3 * np.sin(2 * np.pi * xx / 90.0)
+    # a weave of many components (a ring of frequencies around 1/period), so "not placed" means uncorrelated
+    f = np.fft.fft2(np.random.default_rng(3).normal(size=(n, n)))
+    fy, fx = np.meshgrid(np.fft.fftfreq(n), np.fft.fftfreq(n), indexing="ij")
+    ring = np.abs(np.hypot(fx, fy) - 1.0 / period) < 0.1 / period
+    weave = np.real(np.fft.ifft2(f * ring)).astype(np.float32)
+    weave *= 0.1 / weave.std()
+    m = g.mask
+    o = Oracle(exported_head(fold + weave, m), exported_head(0 * fold, m), 0.0, 0.0, "float32")
+    shape, texture = weave_split(g, o)
+    inner = cv2.erode(m.astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)   # away from the mask's edge
+    assert np.abs(shape.gx - fold)[inner].max() < 0.03                         # the fold survives
+    assert _band_power((shape.gx - fold) * inner, period) < 0.01 * _band_power((o.gx - fold) * inner, period)  # nor weave
+    ratio = _band_power(texture.gx - shape.gx, period) / _band_power((o.gx - shape.gx) * m, period)
+    assert 0.7 < ratio < 1.3                                                    # the weave's spectrum is kept
+    assert abs(np.corrcoef((texture.gx - shape.gx)[inner], (o.gx - shape.gx)[inner])[0, 1]) < 0.2   # its place not
+    for a in (shape.gx, shape.gy, texture.gx, texture.gy):
+        assert np.isfinite(a).all() and np.abs(a).max() <= 1.0 and not a[~m].any()
+    assert np.array_equal(weave_split(g, o)[1].gx, texture.gx)                  # fixed phases: reproducible
+
+
+@pytest.mark.parametrize("fabric, pitch", [(None, 0.3), ({}, 0.3), ({"period_mm": 0.0}, 0.3),
+                                           ({"period_mm": float("nan")}, 0.3), ({"period_mm": "wide"}, 0.3),
+                                           ({"period_mm": 1.2}, None), ({"period_mm": 1.2}, 0.0), ("denim", 0.3)])
+def test_no_weave_oracles_without_a_usable_weave_period(garment, fabric, pitch):
+    g = load_garment(garment.root)
+    g.meta = {k: v for k, v in g.meta.items() if k not in ("fabric", "pixel_pitch_mm")}
+    if fabric is not None:
+        g.meta["fabric"] = fabric
+    if pitch is not None:
+        g.meta["pixel_pitch_mm"] = pitch
+    assert weave_period_px(g) is None and weave_split(g, oracle(g)) is None
+    assert set(reference_predictions(_ctx(g))) == {"flat", "mean-colour", "oracle"}
 
 
 def test_unseen_sketches_are_the_other_garments_and_the_edited_ones(synth, tmp_path):
@@ -200,7 +252,7 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
         assert row in md, row
     assert md.count("gap") >= 6
     data = json.loads((cmp_dir / "compare.json").read_text())
-    assert set(data["references"]) == {"flat", "mean-colour", "oracle"}
+    assert set(data["references"]) == {"flat", "mean-colour", "oracle", "shape-oracle", "texture-oracle"}
     assert data["reference_gap_closed"]["oracle"]["full_angle_deg"] == 1.0
     assert {"tactile_angle_deg", "full_angle_deg_outside"} <= set(data["gap_closed"]["pix2pix"])
     d = data["differences"]["rows"]["pix2pix"]["full_angle_deg"]

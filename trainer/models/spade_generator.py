@@ -3,8 +3,13 @@
 As in GauGAN's defaults (`netG spade`, `ngf 64`, `num_upsampling_layers normal`, `norm_G spectralspadebatch3x3`, no
 encoder): a 3x3 convolution of the sketch resized to H/32 x W/32 starts at 16 x ngf channels; seven SPADE residual
 blocks (head, two middle, four up) halve the width while five nearest upsamplings restore the size; leaky ReLU,
-3x3 conv to RGB + gx, gy, tanh. SPADE: parameter-free batch norm, then a per-pixel scale and shift predicted from
-the resized sketch by a shared 3x3 conv (128 hidden) and two 3x3 convs. Spectral norm on every block convolution.
+3x3 conv to RGB + gx, gy, tanh. SPADE: parameter-free normalisation, then a per-pixel scale and shift predicted
+from the resized sketch by a shared 3x3 conv (128 hidden) and two 3x3 convs. Spectral norm on every block convolution.
+
+The normalisation always uses the batch's own statistics, in evaluation as in training (a batch norm without
+running statistics; at one crop per batch, an instance norm). GauGAN's BatchNorm evaluated with running statistics gathered over single training
+crops, which drifted far from any one crop's: the trained generator's visual L1 on a training crop was 0.70 in eval
+mode against 0.20 with the crop's own statistics, and the baseline did not train at all.
 
 Shape: sketch, mask (N, 1, H, W), H and W multiples of 32 -> (N, 3, H, W), (N, 2, H, W).
 """
@@ -31,17 +36,27 @@ class SpadeConfig:
     out_tactile: int = 2
 
 
+NORM_EPS = 1e-5   # BatchNorm2d's
+
+
+def batch_normalise(x: torch.Tensor) -> torch.Tensor:
+    """Parameter-free batch norm with the batch's own statistics, in eval as in training (written out so it
+    exports to ONNX, which BatchNorm2d without running statistics does not)."""
+    mean = x.mean(dim=(0, 2, 3), keepdim=True)
+    var = x.var(dim=(0, 2, 3), unbiased=False, keepdim=True)
+    return (x - mean) * torch.rsqrt(var + NORM_EPS)
+
+
 class SPADE(nn.Module):
     def __init__(self, *, channels: int, label_nc: int, hidden: int):
         super().__init__()
-        self.norm = nn.BatchNorm2d(channels, affine=False)
         self.shared = nn.Sequential(nn.Conv2d(label_nc, hidden, 3, padding=1), nn.ReLU(True))
         self.gamma = nn.Conv2d(hidden, channels, 3, padding=1)
         self.beta = nn.Conv2d(hidden, channels, 3, padding=1)
 
     def forward(self, x: torch.Tensor, seg: torch.Tensor) -> torch.Tensor:
         a = self.shared(F.interpolate(seg, size=x.shape[-2:], mode="nearest"))
-        return self.norm(x) * (1 + self.gamma(a)) + self.beta(a)
+        return batch_normalise(x) * (1 + self.gamma(a)) + self.beta(a)
 
 
 class SPADEResBlock(nn.Module):
