@@ -75,7 +75,8 @@ class LossConfig:
     clip_start: float = 0.247     # fraction of the schedule before the CLIP-D starts (epoch 100 of 405)
     # What the tactile D is conditioned on (docs/training.md "tactile discriminator shortcuts"). The paper feeds fake
     # patches the *generated* visual crop; "real" gives real and fake patches the same ground-truth crop (dense in
-    # training), so D cannot tell them apart by a visual difference the tactile branch cannot change.
+    # training), so D cannot tell them apart by a visual difference the tactile branch cannot change; "none" shows D
+    # no colour at all (one garment's fabric is fixed, so colour can only teach D a print-tactile correlation).
     tactile_d_visual: str = "generated"
     # Contact mask of unpaired fake patches: "borrowed" (a paired patch's sensor contact mask x the object mask) or
     # "object" (the object mask, as published: ~93 % contact where sensor patches have ~50 %, a giveaway to D).
@@ -210,7 +211,7 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"loss.diffaug: {exc}") from exc
     choices = {("optim", "lr_policy"): POLICIES,
                ("data", "unpaired_sampling"): ("laplacian", "uniform"),
-               ("loss", "tactile_d_visual"): ("generated", "real"),
+               ("loss", "tactile_d_visual"): ("generated", "real", "none"),
                ("loss", "unpaired_contact"): ("borrowed", "object")}
     for (section, key), allowed in choices.items():
         value = getattr(getattr(cfg, section), key)

@@ -45,7 +45,7 @@ def test_tactile_gan_trains_tactile_branch_but_not_visual_branch(garment):
     assert _grad_norm(m.generator.downs) > 0          # the shared encoder learns from touch too
 
 
-@pytest.mark.parametrize("shown", ["generated", "real"])
+@pytest.mark.parametrize("shown", ["generated", "real", "none"])
 def test_tactile_d_conditioning(garment, shown):
     m, b = _setup(garment, overrides=[f"loss.tactile_d_visual={shown}", "loss.unpaired_contact=borrowed"])
     vis, tac = m.generator(b.sketch, b.mask)
@@ -53,7 +53,9 @@ def test_tactile_d_conditioning(garment, shown):
     # sketch and contact channels always match between a real patch and its fake twin
     assert torch.equal(real[:, 2:3], fake[:, 2:3]) and torch.equal(real[:, 6:], fake[:, 6:])
     same_visual = torch.equal(real[:, 3:6], fake[:, 3:6])
-    assert same_visual == (shown == "real")
+    assert same_visual == (shown in ("real", "none"))
+    if shown == "none":   # no colour anywhere: D cannot link the tactile channels to the print
+        assert not real[:, 3:6].any() and not fake[:, 3:6].any() and not unpaired[:, 3:6].any()
     # borrowed contact: unpaired patch i wears paired patch i's sensor footprint, cut to the object
     k = len(b.contact)
     assert len(unpaired) > 0
@@ -74,7 +76,7 @@ def test_unpaired_contact_object_is_the_object_mask(garment):
 
 def test_tactile_d_options_are_validated():
     from trainer.config import ConfigError
-    with pytest.raises(ConfigError, match="loss.tactile_d_visual must be one of generated, real; got .ground-truth."):
+    with pytest.raises(ConfigError, match="loss.tactile_d_visual must be one of generated, real, none; got .ground-truth."):
         load_config("tiny", overrides=["loss.tactile_d_visual=ground-truth"])
     with pytest.raises(ConfigError, match="data.unpaired_sampling must be one of laplacian, uniform"):
         load_config("tiny", overrides=["data.unpaired_sampling=grid"])

@@ -72,7 +72,8 @@ class Ours(Method):
     def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor):
         """(real paired, fake paired, fake unpaired) 7-channel patches.
 
-        The fake visual patch is detached (paper) or the ground-truth crop (`loss.tactile_d_visual: real`); the
+        The fake visual patch is detached (paper), the ground-truth crop (`loss.tactile_d_visual: real`), or no
+        colour at all for real and fake alike (`none`: zeros in the RGB channels); the
         unpaired contact mask is the object's or a paired patch's (`loss.unpaired_contact`). Both choices decide
         whether D can separate fakes by something other than their tactile channels.
         """
@@ -80,7 +81,10 @@ class Ours(Method):
         c = batch.contact
         sk = cut(batch.sketch, batch.origins)
         shown = batch.visual if lc.tactile_d_visual == "real" else visual_fake.detach()
-        real = torch.cat([batch.gx * c, batch.gy * c, sk, cut(batch.visual, batch.origins), c], 1)
+        real_visual = batch.visual
+        if lc.tactile_d_visual == "none":   # D sees no colour: no reward for tactile that follows the print
+            shown = real_visual = torch.zeros_like(batch.visual)
+        real = torch.cat([batch.gx * c, batch.gy * c, sk, cut(real_visual, batch.origins), c], 1)
         fake = torch.cat([cut(tactile_fake, batch.origins) * c, sk, cut(shown, batch.origins), c], 1)
         um = cut(batch.mask, batch.unpaired)
         if lc.unpaired_contact == "borrowed" and len(um):
