@@ -237,9 +237,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             graphs[kind] = GraphSpec(rel, cfg.precision, list(GRAPH_OUTPUTS[kind]), [list(s) for s in cfg.sizes])
         sharing = {}
         if cfg.share_weights:
-            paths = {rel: sources[rel] for rel in (g.file for g in graphs.values())}
+            paths = {kind: sources[g.file] for kind, g in graphs.items()}
             shared, weights, note = _shared(paths, tmp / "shared", held_out, progress)
-            sources.update(shared)
+            sources.update({graphs[kind].file: path for kind, path in shared.items()})
             sources[f"graphs/{WEIGHTS_FILE}"] = weights
             graphs = {k: dataclasses.replace(g, weights=f"graphs/{WEIGHTS_FILE}") for k, g in graphs.items()}
             sharing = {"weights": note}

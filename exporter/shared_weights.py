@@ -103,3 +103,13 @@ def share_weights(graphs: dict[str, Path], out_dir: Path, *, weights_name: str =
     report.weights_bytes = pos
     report.differing = sorted(n for n, keys in by_name.items() if len(keys) > 1)
     return out, weights, report
+
+
+def graph_bytes(path: Path) -> int:
+    """The bytes one graph needs: its file plus the distinct ranges of external data it reads (what the graph
+    would weigh embedding its own tensors)."""
+    from kiosk.bundle.weights import external_refs
+
+    path = Path(path)
+    ranges = {(r.location, r.offset, r.length) for r in external_refs(path.read_bytes())}
+    return path.stat().st_size + sum(length for _, _, length in ranges)

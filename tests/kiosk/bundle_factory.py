@@ -124,9 +124,10 @@ def shared_manifest(**overrides) -> Manifest:
 
 def make_bundle(tmp: Path, *, name: str = "garment.vtb", key_name: str = "operator", poison: bool = False,
                 sign: bool = True, manifest: Manifest | None = None, graph=tiny_graph,
-                shared: bool = False) -> tuple[Path, Path]:
+                shared: bool = False, edit=None) -> tuple[Path, Path]:
     """Write a signed bundle; return (bundle path, trusted-keys folder). `shared`: the graphs (`conv_graph` unless
-    `graph` is given) keep their tensors in one shared weights file, written by the exporter's own code."""
+    `graph` is given) keep their tensors in one shared weights file, written by the exporter's own code; `edit`
+    (a function of the onnx.ModelProto) then changes the shared tactile graph before it is hashed and signed."""
     keys = tmp / "keys"
     if not (keys / f"{key_name}.key").exists():
         generate_keypair(keys, key_name)
@@ -140,6 +141,11 @@ def make_bundle(tmp: Path, *, name: str = "garment.vtb", key_name: str = "operat
     if shared:
         graphs = {rel: p for rel, p in sources.items() if rel.startswith("graphs/")}
         out_graphs, weights, _ = share_weights(graphs, work / "shared")
+        if edit is not None:
+            path = out_graphs["graphs/tactile.onnx"]
+            model = onnx.load(str(path), load_external_data=False)
+            edit(model)
+            onnx.save(model, str(path))
         sources.update(out_graphs)
         sources[f"graphs/{WEIGHTS_FILE}"] = weights
         manifest = manifest or shared_manifest()

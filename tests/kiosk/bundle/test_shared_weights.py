@@ -16,17 +16,16 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from exporter.bundle_writer import write_bundle
-from exporter.keys import load_private_key
-from exporter.shared_weights import WEIGHTS_FILE, share_weights
+from exporter.shared_weights import WEIGHTS_FILE
 from kiosk.bundle.archive import open_bundle
 from kiosk.bundle.manifest import EMBEDDED_SCHEMA, BundleError, manifest_to_dict, parse_manifest
 from kiosk.bundle.probe import probe_bundle
+from kiosk.bundle.store import BundleStore
 from kiosk.bundle.weights import check_graph_weights, external_refs
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import letterbox, network_input, object_mask
 from kiosk.inference.backends import available, open_graph
-from tests.kiosk.bundle_factory import base_manifest, conv_graph, make_assets, make_bundle, shared_manifest
+from tests.kiosk.bundle_factory import base_manifest, conv_graph, make_bundle, shared_manifest
 
 KINDS = (("full", ["visual", "tactile"]), ("tactile", ["tactile"]), ("visual", ["visual"]))
 
@@ -74,23 +73,6 @@ def test_both_engines_give_the_embedded_graphs_outputs_bit_for_bit(made, tmp_pat
         assert all(float(np.abs(a).max()) > 0 for a in got)
 
 
-def _crafted(tmp: Path, made, edit, *, manifest=None, name="bad.vtb") -> Path:
-    """A signed bundle whose shared tactile graph was edited by `edit(model)` after sharing."""
-    work = tmp / f"src-{name}"
-    (work / "g").mkdir(parents=True)
-    graphs = {f"graphs/{k}.onnx": conv_graph(work / "g" / f"{k}.onnx", outs) for k, outs in KINDS}
-    shared, weights, _ = share_weights(graphs, work / "shared")
-    model = onnx.load(str(shared["graphs/tactile.onnx"]), load_external_data=False)
-    edit(model)
-    onnx.save(model, str(shared["graphs/tactile.onnx"]))
-    sources = {f"assets/{k}.png": p for k, p in make_assets(work / "assets").items()}
-    sources.update(shared)
-    sources[f"graphs/{WEIGHTS_FILE}"] = weights
-    key = load_private_key(made["tmp"] / "keys" / "operator.key")
-    write_bundle(tmp / name, manifest or shared_manifest(), sources, signing_key=key)
-    return tmp / name
-
-
 def _entry(key: str, value: str):
     def edit(model):
         t = next(t for t in model.graph.initializer if t.name == "w1")
@@ -128,16 +110,15 @@ def _drop(key: str):
     (_drop("length"), "does not state its length"),
 ])
 def test_hostile_references_are_refused_before_any_engine(made, tmp_path, monkeypatch, edit, match):
-    bad = _crafted(tmp_path, made, edit)
+    bad, trusted = make_bundle(tmp_path, name="bad.vtb", shared=True, edit=edit)
     import onnxruntime
 
     def no_engine(*a, **k):
         raise AssertionError("an engine was given a graph that failed the external-data check")
     monkeypatch.setattr(onnxruntime, "InferenceSession", no_engine)
     with pytest.raises(BundleError, match=match):
-        _open(bad, made["trusted"], tmp_path, "w")
-    from kiosk.bundle.store import BundleStore
-    store = BundleStore(tmp_path / "store", made["trusted"])
+        _open(bad, trusted, tmp_path, "w")
+    store = BundleStore(tmp_path / "store", trusted)
     with pytest.raises(BundleError, match=match):
         store.install(bad)
     assert store.list() == []
@@ -145,9 +126,10 @@ def test_hostile_references_are_refused_before_any_engine(made, tmp_path, monkey
 
 def test_an_embedded_layout_manifest_may_not_reference_external_data(made, tmp_path):
     """Schema 1 names no weights file: a graph that reads one is refused even when the file is in the bundle."""
-    bad = _crafted(tmp_path, made, lambda m: None, manifest=base_manifest(schema_version=EMBEDDED_SCHEMA))
+    bad, trusted = make_bundle(tmp_path, name="bad.vtb", shared=True,
+                               manifest=base_manifest(schema_version=EMBEDDED_SCHEMA))
     with pytest.raises(BundleError, match="the manifest names no weights file for it"):
-        _open(bad, made["trusted"], tmp_path, "w")
+        _open(bad, trusted, tmp_path, "w")
 
 
 def test_a_tampered_weights_file_is_refused(made, tmp_path):
@@ -160,6 +142,20 @@ def test_a_tampered_weights_file_is_refused(made, tmp_path):
             tout.addfile(m, io.BytesIO(data))
     with pytest.raises(BundleError, match=f"graphs/{WEIGHTS_FILE} does not match its SHA-256"):
         _open(bad, made["trusted"], tmp_path, "w")
+
+
+def test_the_store_installs_activates_and_refuses_a_weights_file_damaged_on_disk(made, tmp_path):
+    store = BundleStore(tmp_path / "store", made["trusted"])
+    s = store.install(made["shared"])            # install probes every graph in ONNX Runtime
+    store.activate(s.garment, s.version)
+    v2, _ = make_bundle(made["tmp"], name="v2.vtb", shared=True, manifest=shared_manifest(model_version="2026.12.1"))
+    s2 = store.install(v2)
+    weights = s2.path / "graphs" / WEIGHTS_FILE
+    data = weights.read_bytes()
+    weights.write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    with pytest.raises(BundleError, match=f"graphs/{WEIGHTS_FILE} does not match its SHA-256"):
+        store.activate(s2.garment, s2.version)
+    assert store.active()[s.garment].version == s.version
 
 
 def _doc(**graph_fields):
