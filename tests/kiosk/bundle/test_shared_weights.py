@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import re
 import tarfile
 from pathlib import Path
 
@@ -55,6 +56,8 @@ def test_shared_bundle_verifies_and_stores_each_tensor_once(made, tmp_path):
     encoder = {k: {(r.offset, r.length) for r in v if r.tensor in ("w1", "b1")} for k, v in refs.items()}
     assert len(encoder["full"]) == 2 and encoder["full"] == encoder["tactile"] == encoder["visual"]
     assert [r.graph for r in probe_bundle(b)] == ["full", "tactile", "visual"]
+    from kiosk.bundle.cli import _summary
+    assert re.search(r"\nweights +graphs/weights.bin +[0-9.]+ MB, read by full, tactile, visual\n", _summary(b))
 
 
 @pytest.mark.parametrize("engine", ["onnxruntime", "openvino"])
