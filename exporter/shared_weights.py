@@ -113,3 +113,15 @@ def graph_bytes(path: Path) -> int:
     path = Path(path)
     ranges = {(r.location, r.offset, r.length) for r in external_refs(path.read_bytes())}
     return path.stat().st_size + sum(length for _, _, length in ranges)
+
+
+def embedded(path: Path, dst: Path) -> Path:
+    """`path` itself if its graph embeds every tensor, else a copy at `dst` that does: tools that write the model
+    to a folder of their own and read it back (ONNX Runtime's quantisation pre-processing) lose a relative
+    weights file."""
+    from kiosk.bundle.weights import external_refs
+
+    if not external_refs(Path(path).read_bytes()):
+        return Path(path)
+    onnx.save(onnx.load(str(path)), str(dst))
+    return Path(dst)

@@ -77,3 +77,25 @@ def test_int8_export_shares_weights_at_the_same_stated_error(run_dir, tmp_path):
             got = open_graph(engine, s.graph_path(kind), threads=1).run(spec.outputs, feeds(x.sketch, x.mask))
             want = open_graph(engine, e.graph_path(kind), threads=1).run(spec.outputs, feeds(x.sketch, x.mask))
             assert all(np.array_equal(a, b) for a, b in zip(got, want)), (engine, kind)
+
+
+def test_a_graph_reading_shared_weights_lowers_like_its_embedded_twin(tmp_path):
+    """The benchmark builds int8/fp16 graphs from a bundle's graphs, which may read a shared weights file."""
+    import cv2
+
+    from exporter.calibration import calibration_set
+    from exporter.quantize import convert_fp16, quantize_int8
+    from tests.kiosk.bundle_factory import make_assets
+
+    (tmp_path / "g").mkdir()
+    plain = conv_graph(tmp_path / "g" / "full.onnx", ["visual", "tactile"])
+    shared = share_weights({"full": plain}, tmp_path / "s")[0]["full"]
+    sketch = cv2.imread(str(make_assets(tmp_path / "a")["sketch"]), cv2.IMREAD_GRAYSCALE)
+    cal = calibration_set(sketch, [(256, 256)], 2, 0)
+    x = cal[0]
+    for lower in (lambda src, name: quantize_int8(src, tmp_path / f"{name}.int8.onnx", cal),
+                  lambda src, name: convert_fp16(src, tmp_path / f"{name}.fp16.onnx")):
+        a, b = lower(plain, "plain"), lower(shared, "shared")
+        got = open_graph("onnxruntime", b, threads=1).run(["visual", "tactile"], feeds(x.sketch, x.mask))
+        want = open_graph("onnxruntime", a, threads=1).run(["visual", "tactile"], feeds(x.sketch, x.mask))
+        assert all(np.array_equal(g, w) for g, w in zip(got, want))
