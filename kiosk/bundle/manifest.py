@@ -8,6 +8,9 @@ lists and mappings are refused, unknown keys are refused, nesting is bounded, an
 "1.9" < "1.10"): the store refuses to install or activate a version below a garment's newest installed one.
 The exporter writes `model.source_run` without the build machine's paths (a path relative to the runs folder, or
 `sha256:<hex>` of the run's location when it lies outside it); older bundles with an absolute path still load.
+Schema 2 adds `graphs.<kind>.weights`: the graphs keep their tensors in one shared, hashed weights file beside them
+(`kiosk.bundle.weights` checks what each graph reads from it); schema-1 bundles, whose graphs embed their tensors,
+still load.
 """
 from __future__ import annotations
 
