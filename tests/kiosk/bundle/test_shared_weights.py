@@ -201,7 +201,7 @@ def _one_tensor_model(location: str, offset: str, length: str, dims=(3, 4)) -> b
     return onnx.helper.make_model(graph).SerializeToString()
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(location=st.one_of(st.sampled_from(["weights.bin", "../weights.bin", "/weights.bin", "./weights.bin",
                                            "weights.bin\0", "*/_ORT_MEM_ADDR_/*", ""]), st.text(max_size=20)),
        offset=st.integers(0, 10 ** 19 - 1), length=st.integers(0, 200), size=st.integers(0, 300))
@@ -219,7 +219,7 @@ def test_a_reference_is_accepted_exactly_when_it_lies_inside_the_weights_file(tm
         assert ok and n == 1
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(data=st.data())
 def test_damaged_graph_bytes_give_a_bundle_error_or_a_true_reading(data):
     """Truncated, bit-flipped or random bytes: the reader says BundleError or reads references, never crashes."""
