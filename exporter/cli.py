@@ -56,6 +56,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--runs-root", type=Path, default=None,
                    help="record the run in the manifest relative to this folder (default: the working directory; "
                         "a run outside it is recorded as a hash of its path)")
+    p.add_argument("--embed-weights", action="store_true",
+                   help="each graph embeds its own tensors (the layout kiosks before exporter 0.3 read; about "
+                        "twice the bytes) instead of sharing one weights file")
     return p
 
 
@@ -68,7 +71,8 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
                        force=args.force, model_version=args.model_version, display_name=args.display_name,
-                       normalization=args.normalization, runs_root=args.runs_root)
+                       normalization=args.normalization, runs_root=args.runs_root,
+                       share_weights=not args.embed_weights)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
     log_path = args.log or Path(str(args.out) + ".log")

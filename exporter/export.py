@@ -3,6 +3,7 @@ its measured error against fp32, the garment's friction calibration and referenc
 """
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import hashlib
 import json
@@ -21,11 +22,12 @@ from exporter.bundle_writer import write_bundle
 from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
 from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
+from exporter.shared_weights import WEIGHTS_FILE, share_weights
 from kiosk.bundle.archive import sha256_file
 from exporter.errors import ExportError
-from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
+from kiosk.bundle.manifest import EMBEDDED_SCHEMA, SCHEMA_VERSION, GraphSpec, Manifest
 from kiosk.contract.garment import garment_id
-from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, is_grid
+from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid
 from kiosk.contract.haptics import NORMALIZATIONS
 
 # A wrong export (a missing op, wrong weights) differs by 1e-2 and more. ONNX Runtime's fp32 kernels differ from
@@ -52,6 +54,7 @@ class ExportConfig:
     display_name: str | None = None
     seed: int = 0
     runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
+    share_weights: bool = True     # graphs keep their tensors in one shared weights file (manifest schema 2)
 
 
 @dataclass
@@ -100,6 +103,22 @@ def lower_precision(fp32: Path, precision: str, dst_dir: Path, calibration, cfg:
     if precision == "fp16":
         return convert_fp16(fp32, Path(dst_dir) / f"{stem}.fp16.onnx")
     return Path(fp32)
+
+
+def _shared(paths: dict[str, Path], folder: Path, held_out, progress) -> tuple[dict[str, Path], Path, str]:
+    """The graphs rewritten to share one weights file, checked to give bit-identical outputs to the graphs that
+    embed their tensors (same nodes, same tensor bytes: any difference means the sharing is wrong)."""
+    shared, weights, report = share_weights(paths, folder)
+    x = held_out[0]
+    for kind, path in paths.items():
+        want = ort_session(path, threads=1).run(GRAPH_OUTPUTS[kind], feeds(x.sketch, x.mask))
+        got = ort_session(shared[kind], threads=1).run(GRAPH_OUTPUTS[kind], feeds(x.sketch, x.mask))
+        if not all(np.array_equal(a, b) for a, b in zip(want, got)):
+            raise ExportError(f"the {kind} graph with shared weights does not reproduce the graph that embeds them; "
+                              "export with --embed-weights and report this")
+    note = report.line() + (f"; differing between graphs: {', '.join(report.differing)}" if report.differing else "")
+    progress(f"export: shared weights: {note}")
+    return shared, weights, note
 
 
 def _numbers(doc, prefix: str = "") -> dict[str, float]:
@@ -216,12 +235,20 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             rel = f"graphs/{kind}.{cfg.precision}.onnx"
             sources[rel] = path
             graphs[kind] = GraphSpec(rel, cfg.precision, list(GRAPH_OUTPUTS[kind]), [list(s) for s in cfg.sizes])
+        sharing = {}
+        if cfg.share_weights:
+            paths = {kind: sources[g.file] for kind, g in graphs.items()}
+            shared, weights, note = _shared(paths, tmp / "shared", held_out, progress)
+            sources.update({graphs[kind].file: path for kind, path in shared.items()})
+            sources[f"graphs/{WEIGHTS_FILE}"] = weights
+            graphs = {k: dataclasses.replace(g, weights=f"graphs/{WEIGHTS_FILE}") for k, g in graphs.items()}
+            sharing = {"weights": note}
         metrics_path = run_dir / "metrics.json"
         metrics = _numbers(json.loads(metrics_path.read_text())) if metrics_path.is_file() else {}
         ck_path = Path(info["path"])
         now = dt.datetime.now(dt.timezone.utc).replace(microsecond=0)
         manifest = Manifest(
-            schema_version=SCHEMA_VERSION,
+            schema_version=SCHEMA_VERSION if cfg.share_weights else EMBEDDED_SCHEMA,
             garment_id=garment_id(garment_dir.name),
             display_name=cfg.display_name or garment_dir.name.removeprefix("singleskit_").split("_padded_")[0],
             model_version=cfg.model_version or f"{now:%Y%m%d}-{info.get('step', 0)}",
@@ -242,7 +269,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             errors={**errors, "fp32": {f"{k}_onnx_vs_torch_max_abs": v for k, v in parities.items()}},
             branches=branches,
             provenance={"host": socket.gethostname(), "python": platform.python_version(),
-                        "checkpoint": ck_path.name, **_recipe(cfg),
+                        "checkpoint": ck_path.name, **_recipe(cfg), **sharing,
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
         progress("export: writing" + (" and signing" if signing_key is not None else "") + " the bundle")

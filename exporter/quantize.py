@@ -27,6 +27,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
+from exporter.shared_weights import embedded
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import NetworkInput
 
@@ -142,6 +143,7 @@ def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *, 
         raise ValueError(f"calibration method must be one of {', '.join(CALIBRATION_METHODS)}; got {method!r}")
     with tempfile.TemporaryDirectory(prefix="vtkiosk-quant-") as tmp:
         pre = Path(tmp) / "pre.onnx"
+        src = embedded(Path(src), Path(tmp) / "src.onnx")   # a bundle's graph may read a shared weights file
         quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
         exclude = fp32_island_nodes(onnx.load(str(pre)), fp32_islands)
         extra = {"ActivationSymmetric": False, "WeightSymmetric": True}

@@ -26,8 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from exporter.bench.bundle_bytes import bundle_layout, bundle_line
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
 from exporter.bench.sources import BenchError, Candidate, build_sources, torch_available
+from exporter.shared_weights import graph_bytes
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid, unpack
 
@@ -358,7 +360,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                     "run": str(src.run_dir) if src.run_dir else None, "which": src.which}
             row = {**base, "precision": c.precision, "provider": c.provider, "engine": c.engine, "form": c.form,
                    "source": c.source, "gmac": gmac(c.path, kind, size),
-                   "graph_bytes": Path(c.path).stat().st_size if c.path else None, **_latency(_worker(spec, tmp))}
+                   "graph_bytes": graph_bytes(c.path) if c.path else None, **_latency(_worker(spec, tmp))}
             test = _test_runner(c, args.threads, src, ref_sess)
             if ref_out is not None:
                 row.update(compare_outputs(ref_out, test, GRAPH_OUTPUTS[kind], held_out, m.friction_scale,
@@ -456,7 +458,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
                             "profile": str(folder)}
                     prof = _worker(spec, tmp)["profile"]
                     profiles.append({"graph": kind, "size": _fmt_size(size), "precision": precision, **prof})
-            graph_bytes = {k: bundle.graph_path(k).stat().st_size for k in m.graphs}
+            layout = bundle_layout(bundle)
         finally:
             bar.close()
     env["loadavg_end"] = list(os.getloadavg())
@@ -467,7 +469,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
         "created_at": dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
         "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
                    "checkpoint_sha256": m.checkpoint_sha256, "precision": default,
-                   "bytes": Path(args.bundle).stat().st_size, "graph_bytes": graph_bytes,
+                   "bytes": Path(args.bundle).stat().st_size, **layout,
                    "declared_sizes": {k: [_fmt_size(tuple(s)) for s in m.graph(k).sizes] for k in graphs},
                    "manifest_errors": m.errors, "provenance": m.provenance, "signature_checked": trusted is not None},
         "reference": src.reference_from or None,
@@ -495,8 +497,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
     for prof in result["profiles"]:
         print("\n".join(profile_lines(prof)))
     b = result["bundle"]
-    parts = ", ".join(f"{k} graph {v / 1e6:.2f} MB" for k, v in b["graph_bytes"].items())
-    print(f"bundle: {b['bytes'] / 1e6:.2f} MB ({parts})")
+    print(bundle_line(b))
     for note in result["notes"]:
         print(f"note: {note}")
     load = result["environment"]

@@ -22,6 +22,7 @@ import numpy as np
 
 from kiosk.bundle.manifest import MAX_MANIFEST_BYTES, PATH_RE, BundleError, Manifest, parse_manifest
 from kiosk.bundle.signature import verify_signature
+from kiosk.bundle.weights import check_graph_weights
 
 MANIFEST = "manifest.yaml"
 SIGNATURE = "manifest.sig"
@@ -150,9 +151,10 @@ def _listed_files(root: Path) -> set[str]:
 
 
 def verify_directory(root: Path, trusted: dict | None, *, allow_unsigned: bool = False) -> Bundle:
-    """Check an unpacked bundle: signature over the manifest's bytes, then the manifest schema, the exact file set
-    and every hash. The signature comes first so that an unsigned or foreign archive never reaches the YAML
-    parser: only bytes a trusted key signed are parsed."""
+    """Check an unpacked bundle: signature over the manifest's bytes, then the manifest schema, the exact file set,
+    every hash, and every graph's external-data references (only into its shared weights file). The signature
+    comes first so that an unsigned or foreign archive never reaches the YAML parser: only bytes a trusted key
+    signed are parsed."""
     root = Path(root)
     mpath, spath = root / MANIFEST, root / SIGNATURE
     if not mpath.is_file():
@@ -181,6 +183,9 @@ def verify_directory(root: Path, trusted: dict | None, *, allow_unsigned: bool =
             raise BundleError(f"bundle file {rel} is not a regular file")
         if sha256_file(p) != digest:
             raise BundleError(f"bundle file {rel} does not match its SHA-256 in the manifest (corrupt or modified)")
+    for spec in manifest.graphs.values():   # after the hashes: only signed bytes are parsed
+        check_graph_weights(root / spec.file, None if spec.weights is None else root / spec.weights,
+                            graph_name=spec.file, weights_name=spec.weights)
     return Bundle(root=root, manifest=manifest, key_id=kid)
 
 

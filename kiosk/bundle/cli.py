@@ -71,6 +71,9 @@ def _summary(bundle, panel: tuple[float, str] | None = None) -> str:
     for kind, g in m.graphs.items():
         sizes = ", ".join(f"{w}x{h}" for w, h in g.sizes)
         lines.append(f"graph       {kind:8} {g.precision:5} {g.file}  sizes {sizes}")
+    for w in sorted({g.weights for g in m.graphs.values() if g.weights}):
+        users = [k for k, g in m.graphs.items() if g.weights == w]
+        lines.append(f"weights     {w}  {bundle.path(w).stat().st_size / 1e6:.2f} MB, read by {', '.join(users)}")
     for prec, errs in m.errors.items():
         against = "PyTorch" if prec == "fp32" else "fp32"
         lines.append(f"error       {prec:5} vs {against}: " + ", ".join(f"{k} {v:.4g}" for k, v in errs.items()))

@@ -8,6 +8,9 @@ lists and mappings are refused, unknown keys are refused, nesting is bounded, an
 "1.9" < "1.10"): the store refuses to install or activate a version below a garment's newest installed one.
 The exporter writes `model.source_run` without the build machine's paths (a path relative to the runs folder, or
 `sha256:<hex>` of the run's location when it lies outside it); older bundles with an absolute path still load.
+Schema 2 adds `graphs.<kind>.weights`: the graphs keep their tensors in one shared, hashed weights file beside them
+(`kiosk.bundle.weights` checks what each graph reads from it); schema-1 bundles, whose graphs embed their tensors,
+still load.
 """
 from __future__ import annotations
 
@@ -22,7 +25,9 @@ from kiosk.contract.errors import InputError, KioskError
 from kiosk.contract.graph import GRAPH_KINDS, GRAPH_OUTPUTS
 from kiosk.contract.haptics import NORMALIZATIONS, check_constants
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2            # the newest this kiosk reads; version 2 adds a graph's shared `weights` file
+SCHEMA_VERSIONS = (1, 2)
+EMBEDDED_SCHEMA = 1           # what a bundle whose graphs embed their weights is written as (older kiosks read it)
 MAX_MANIFEST_BYTES = 1 << 20
 MAX_DEPTH = 12   # the schema nests 4 deep (graphs.<kind>.sizes[i]); room to spare, far from Python's recursion limit
 PRECISIONS = ("fp32", "fp16", "int8")
@@ -43,6 +48,9 @@ class GraphSpec:
     precision: str
     outputs: list[str]
     sizes: list[list[int]]
+    # The bundle file (beside `file`) holding the tensors the graph stores as ONNX external data, shared by the
+    # bundle's graphs; None when the graph embeds its own (schema 1).
+    weights: str | None = None
 
 
 @dataclass(frozen=True)
@@ -165,9 +173,10 @@ def manifest_from_dict(doc: Any) -> Manifest:
     _need(isinstance(doc, dict), "top level must be a mapping")
     version = doc.get("schema_version")
     _need(isinstance(version, int) and not isinstance(version, bool), "schema_version must be an integer")
-    if version != SCHEMA_VERSION:
-        raise BundleError(f"manifest schema version {version} is not supported by this kiosk (it reads version "
-                          f"{SCHEMA_VERSION}); update the kiosk software or re-export the bundle")
+    if version not in SCHEMA_VERSIONS:
+        raise BundleError(f"manifest schema version {version} is not supported by this kiosk (it reads versions "
+                          f"{', '.join(map(str, SCHEMA_VERSIONS))}); update the kiosk software or re-export the "
+                          "bundle")
     _only_keys(doc, {"schema_version", "garment", "model", "created_at", "exporter_version", "graphs", "haptics",
                      "panel", "assets", "files", "metrics", "errors", "provenance"}, "manifest")
     garment = _mapping(doc, "garment")
@@ -187,15 +196,20 @@ def manifest_from_dict(doc: Any) -> Manifest:
     for kind, spec in graphs_doc.items():
         _need(kind in GRAPH_KINDS, f"unknown graph kind {kind!r} (known: {', '.join(GRAPH_KINDS)})")
         _need(isinstance(spec, dict), f"graphs.{kind} must be a mapping")
-        _only_keys(spec, {"file", "precision", "outputs", "sizes"}, f"graphs.{kind}")
+        _only_keys(spec, {"file", "precision", "outputs", "sizes"} | ({"weights"} if version >= 2 else set()),
+                   f"graphs.{kind}")
         precision = _str(spec, "precision", where=f"graphs.{kind}.")
         _need(precision in PRECISIONS, f"graphs.{kind}.precision must be one of {', '.join(PRECISIONS)}")
         outputs = spec.get("outputs")
         _need(outputs == GRAPH_OUTPUTS[kind], f"graphs.{kind}.outputs must be {GRAPH_OUTPUTS[kind]}")
         sizes = spec.get("sizes")
         _need(isinstance(sizes, list) and 0 < len(sizes) <= 32, f"graphs.{kind}.sizes must be a non-empty list")
-        graphs[kind] = GraphSpec(_str(spec, "file", PATH_RE, f"graphs.{kind}."), precision, list(outputs),
-                                 [_size(s, f"graphs.{kind}.sizes entry") for s in sizes])
+        file = _str(spec, "file", PATH_RE, f"graphs.{kind}.")
+        weights = _str(spec, "weights", PATH_RE, f"graphs.{kind}.") if "weights" in spec else None
+        _need(weights is None or weights.rpartition("/")[0] == file.rpartition("/")[0],
+              f"graphs.{kind}.weights must sit in the same folder as its graph ({file})")
+        graphs[kind] = GraphSpec(file, precision, list(outputs),
+                                 [_size(s, f"graphs.{kind}.sizes entry") for s in sizes], weights)
     _need(branches == 2 or set(graphs) == {"full"},
           "a single-branch model (model.branches 1) ships only the full graph")
     haptics = _mapping(doc, "haptics")
@@ -219,6 +233,11 @@ def manifest_from_dict(doc: Any) -> Manifest:
         _need(isinstance(v, str) and bool(_SHA_RE.match(v)), f"files.{k} must be a lowercase SHA-256 hex digest")
     for spec in graphs.values():
         _need(spec.file in files, f"graph file {spec.file} is not listed in files")
+        _need(spec.weights is None or spec.weights in files, f"weights file {spec.weights} is not listed in files")
+    graph_files = {g.file for g in graphs.values()}
+    for spec in graphs.values():
+        _need(spec.weights not in graph_files and spec.weights not in assets.values(),
+              f"weights file {spec.weights} is also a graph or an asset")
     for path in assets.values():
         _need(path in files, f"asset {path} is not listed in files")
     errors_doc = doc.get("errors", {})
@@ -270,6 +289,13 @@ def parse_manifest(data: bytes) -> Manifest:
     return manifest_from_dict(doc)
 
 
+def _graph_dict(g: GraphSpec) -> dict:
+    d = asdict(g)
+    if g.weights is None:   # absent for embedded-weight graphs, so their canonical bytes stay what was signed
+        del d["weights"]
+    return d
+
+
 def manifest_to_dict(m: Manifest) -> dict:
     """The document form of a manifest, in a stable key order (what `dump_manifest` writes)."""
     haptics: dict[str, Any] = {"friction_scale": m.friction_scale, "normalization": m.friction_normalization,
@@ -286,7 +312,7 @@ def manifest_to_dict(m: Manifest) -> dict:
         "model": model,
         "created_at": m.created_at,
         "exporter_version": m.exporter_version,
-        "graphs": {k: asdict(g) for k, g in m.graphs.items()},
+        "graphs": {k: _graph_dict(g) for k, g in m.graphs.items()},
         "haptics": haptics,
         "panel": {"size": list(m.panel_size)},
         "assets": dict(m.assets),

@@ -2,6 +2,7 @@
 exporter's real writer. The graphs compute simple functions of the sketch so outputs are checkable."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
+from exporter.shared_weights import WEIGHTS_FILE, share_weights
 from kiosk.bundle.manifest import SCHEMA_VERSION, GraphSpec, Manifest
 from kiosk.contract.graph import OUTPUT_CHANNELS
 from kiosk.contract.sketch import rasterize
@@ -113,17 +115,40 @@ def base_manifest(**overrides) -> Manifest:
     return Manifest(**fields)
 
 
+def shared_manifest(**overrides) -> Manifest:
+    """`base_manifest` for a bundle whose graphs share `graphs/weights.bin` (the exporter's default layout)."""
+    m = base_manifest(**overrides)
+    return dataclasses.replace(m, graphs={k: dataclasses.replace(g, weights=f"graphs/{WEIGHTS_FILE}")
+                                          for k, g in m.graphs.items()})
+
+
 def make_bundle(tmp: Path, *, name: str = "garment.vtb", key_name: str = "operator", poison: bool = False,
-                sign: bool = True, manifest: Manifest | None = None, graph=tiny_graph) -> tuple[Path, Path]:
-    """Write a signed bundle; return (bundle path, trusted-keys folder)."""
+                sign: bool = True, manifest: Manifest | None = None, graph=tiny_graph,
+                shared: bool = False, edit=None) -> tuple[Path, Path]:
+    """Write a signed bundle; return (bundle path, trusted-keys folder). `shared`: the graphs (`conv_graph` unless
+    `graph` is given) keep their tensors in one shared weights file, written by the exporter's own code; `edit`
+    (a function of the onnx.ModelProto) then changes the shared tactile graph before it is hashed and signed."""
     keys = tmp / "keys"
     if not (keys / f"{key_name}.key").exists():
         generate_keypair(keys, key_name)
     work = tmp / f"src-{name}"
     (work / "graphs").mkdir(parents=True, exist_ok=True)
     sources = {f"assets/{k}.png": p for k, p in make_assets(work / "assets").items()}
+    if shared and graph is tiny_graph:
+        graph = conv_graph
     for kind, outs in (("full", ["visual", "tactile"]), ("tactile", ["tactile"]), ("visual", ["visual"])):
         sources[f"graphs/{kind}.onnx"] = graph(work / "graphs" / f"{kind}.onnx", outs, poison=poison)
+    if shared:
+        graphs = {rel: p for rel, p in sources.items() if rel.startswith("graphs/")}
+        out_graphs, weights, _ = share_weights(graphs, work / "shared")
+        if edit is not None:
+            path = out_graphs["graphs/tactile.onnx"]
+            model = onnx.load(str(path), load_external_data=False)
+            edit(model)
+            onnx.save(model, str(path))
+        sources.update(out_graphs)
+        sources[f"graphs/{WEIGHTS_FILE}"] = weights
+        manifest = manifest or shared_manifest()
     key = load_private_key(keys / f"{key_name}.key") if sign else None
     out = tmp / name
     write_bundle(out, manifest or base_manifest(), sources, signing_key=key)

@@ -46,6 +46,9 @@ def test_bench_fp32_bundle_with_run(fp32_bundle, run_dir, tmp_path):
     assert res["settings"]["wait"] == "passive" and "2 threads, passive wait" in proc.stdout
     assert res["reference"] == "the bundle's own fp32 graphs"
     assert res["bundle"]["bytes"] == fp32_bundle.stat().st_size
+    b = res["bundle"]   # the exporter's shared layout: both graphs read one weights file
+    assert list(b["weights_bytes"]) == ["graphs/weights.bin"] and "shared weights" in proc.stdout
+    assert b["embedded_graph_bytes"] > 1.5 * (sum(b["graph_bytes"].values()) + b["weights_bytes"]["graphs/weights.bin"])
     canvas = [r for r in res["rows"] if r["setting"] == "512x512 canvas"]
     timed = [r for r in canvas if r["engine"] != "flat"]
     # every engine x (fp32 native, int8 on the rewrite, int8 native), plus PyTorch eager

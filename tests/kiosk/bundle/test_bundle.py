@@ -196,7 +196,7 @@ def _manifest_doc():
 
 
 @pytest.mark.parametrize("mutate, match", [
-    (lambda d: d.update(schema_version=2), "schema version 2 is not supported"),
+    (lambda d: d.update(schema_version=3), "schema version 3 is not supported"),
     (lambda d: d.update(schema_version="1"), "schema_version must be an integer"),
     (lambda d: d.update(surprise=1), "unknown key"),
     (lambda d: d["haptics"].update(friction_scale=0), "must be positive"),
