@@ -5,9 +5,10 @@ engine (`kiosk.inference.backends`; `auto` picks one at construction by timing t
 settings and provider; `warm()` creates and runs them ahead of the first stroke), its friction calibration and its
 reference assets. A lane is who runs the graph: `main` (stroke ends, refinements) or `preview` (while drawing); with
 `preview_threads` the preview lane has sessions of its own with that many threads, so a preview computed beside a
-running refinement does not queue for the refinement's thread pool. Outputs are checked before anything downstream sees them: a graph that returns NaN/Inf raises
-`NonFiniteOutput` and the daemon keeps its last good frame. `OutputCache` keeps recent outputs by the planner's
-content key, so an unchanged sketch (undo, a re-layout, a device reconnect) costs no inference.
+running refinement does not queue for the refinement's thread pool. Outputs are checked before anything downstream
+sees them: a graph that returns NaN/Inf raises `NonFiniteOutput` and the daemon keeps its last good frame.
+`OutputCache` keeps recent outputs by the planner's content key, so an unchanged sketch (undo, a re-layout, a device
+reconnect) costs no inference.
 
 Shapes: visual is kept as RGBA uint8 (H, W, 4) (alpha = the object mask: what the page draws), tactile as float32
 (2, H, W) (gx, gy), both at the network grid.

@@ -130,9 +130,9 @@ class InferenceConfig:
     latency_budget_ms: a new bundle must answer its probe within this, and the inference loop's p95 must stay
     under it for the kiosk to count as healthy. threads: the main lane's threads (stroke ends and refinements).
     preview_threads: previews while drawing run in a lane of their own with this many threads, beside a running
-    refinement instead of queued behind it; 0 runs them in the one main loop, in turn with everything else. refine: answer a stroke end first at the preview resolution (visual
-    and friction), then at full resolution (the page asks for the refinement at once). precisions: the graph
-    precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
+    refinement instead of queued behind it; 0 runs them in the one main loop, in turn with everything else.
+    refine: answer a stroke end first at the preview resolution (visual and friction), then at full resolution (the
+    page asks for the refinement at once). precisions: the graph precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
     kiosk, is refused at load with a clear reason).
     """
 
