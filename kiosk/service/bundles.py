@@ -21,6 +21,7 @@ from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import grid_floor
 from kiosk.inference.backends import ENGINES
 from kiosk.inference.engine import LoadedBundle
+from kiosk.inference.scene import choose_graph
 from kiosk.ops.health import CheckResult
 from kiosk.service.config import KioskConfig
 from kiosk.service.metrics import ServiceMetrics
@@ -116,8 +117,8 @@ class BundleSet:
             grid = (grid_floor(min(cw, inf.max_resolution)), grid_floor(min(ch, inf.max_resolution)))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
             runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
-            if lb.lane_of("preview") == "preview":
-                lb.warm((kind,), [preview], lane="preview")  # the preview lane's own sessions
+            if lb.lane_of("preview") == "preview" and kind == choose_graph(("visual",), lb.graphs()):
+                lb.warm((kind,), [preview], lane="preview")  # the one graph previews run, in their own lane
             ms = min(r[2] for r in runs[2:])
             results[kind] = {"grid": list(grid), "ms": round(ms, 1)}
             if ms > budget:

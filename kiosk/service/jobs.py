@@ -33,7 +33,7 @@ class Superseded(Exception):
     """A preview or refinement replaced by a newer request before it ran."""
 
 
-@dataclass
+@dataclass(eq=False)  # a job is itself: comparing requests field by field would compare their sketch arrays
 class Job:
     request: RenderRequest
     received_at: float
