@@ -16,7 +16,9 @@ resolution):
    preview lane beside the refinement with its own threads. Reference rows: previews alone (the oracle for the
    preview) and refinements alone.
 
-Prints both tables, writes JSON and a PNG. Nothing here imports torch.
+Each configuration and split is measured in `--rounds` fresh processes, the order reversed every other round, so
+a load that drifts over minutes (two training runs share this project's machine) does not favour whichever ran
+first. Prints both tables, writes JSON and a PNG. Nothing here imports torch.
 """
 from __future__ import annotations
 
@@ -76,9 +78,13 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--trusted-keys", type=Path, default=None,
                    help="check the bundle's signature against these keys (default: hashes only)")
     p.add_argument("--engines", default=None, help="onnxruntime,openvino (default: every installed one)")
-    p.add_argument("--runs", type=int, default=8, help="timed runs per sweep configuration (default 8)")
-    p.add_argument("--warmup", type=int, default=2, help="untimed runs first (default 2)")
-    p.add_argument("--seconds", type=float, default=6.0, help="measuring window per thread split (default 6 s)")
+    p.add_argument("--runs", type=int, default=5, help="timed runs per sweep process (default 5)")
+    p.add_argument("--warmup", type=int, default=1, help="untimed runs first, per process (default 1)")
+    p.add_argument("--rounds", type=int, default=2,
+                   help="fresh processes per sweep configuration and per thread split, in alternating order "
+                        "(default 2)")
+    p.add_argument("--seconds", type=float, default=4.0,
+                   help="measuring window per thread split and round (default 4 s)")
     p.add_argument("--lanes-engine", choices=ENGINES, default="onnxruntime",
                    help="the engine the lanes measurement serves with (default onnxruntime)")
     p.add_argument("--sweep", choices=("full", "threads", "none"), default="full",
@@ -155,76 +161,103 @@ def _stats(times: list[float]) -> dict:
 
 
 def sweep(bundle, work: dict, engines: list[str], args, tmp: Path, step) -> list[dict]:
+    """Every configuration in `args.rounds` fresh processes, the order reversed every other round, times pooled:
+    a machine whose load drifts over minutes then tilts no configuration more than another."""
     from kiosk.contract.graph import GRAPH_OUTPUTS
 
     m = bundle.manifest
     rows: list[dict] = []
+    full = args.sweep == "full"
     for what, (graph, grid, x) in work.items():
         feed = tmp / f"{what}.npz"
         np.savez(feed, sketch=x.sketch, mask=x.mask)
-        full = args.sweep == "full"
         configs = [("onnxruntime", label, s) for label, s in ort_settings(full)] if "onnxruntime" in engines else []
         configs += [("openvino", label, s) for label, s in openvino_settings(full)] if "openvino" in engines else []
-        # each engine's 1-thread run is the reference of its difference column: measure those first
-        configs.sort(key=lambda c: (c[2] != SessionSettings(threads=1), ENGINES.index(c[0])))
-        refs: dict[str, list[np.ndarray]] = {}
+        times: list[list[float]] = [[] for _ in configs]
+        peak = [0.0] * len(configs)
+        base = [0.0] * len(configs)
+        outs: list[list[np.ndarray] | None] = [None] * len(configs)
+        for rnd in range(args.rounds):
+            order = list(range(len(configs)))[::-1 if rnd % 2 else 1]
+            for i in order:
+                engine, _, s = configs[i]
+                step(f"{what} {graph} {grid[0]}x{grid[1]} {engine} {s.label(engine)} (round {rnd + 1})")
+                dump = tmp / f"out-{what}-{i}.npz"
+                spec = {"kind": "openvino" if engine == "openvino" else "onnx", "graph": graph,
+                        "size": list(grid), "runs": args.runs, "warmup": args.warmup, "threads": s.threads,
+                        "wait": "active" if s.spinning else "passive", "input": str(feed),
+                        "path": str(bundle.graph_path(graph)), "outputs": GRAPH_OUTPUTS[graph],
+                        "provider": "CPUExecutionProvider", "session": s.to_json(), "dump": str(dump)}
+                res = _run("exporter.bench.worker", spec, tmp, f"{graph} {engine} {s.label(engine)}")
+                times[i] += res["times_ms"]
+                peak[i], base[i] = max(peak[i], res["peak_rss_mb"]), res["base_rss_mb"]
+                if outs[i] is None:
+                    with np.load(dump) as z:
+                        outs[i] = [z[k] for k in sorted(z.files, key=lambda n: int(n.split("_")[1]))]
+        # each engine's 1-thread run with the kiosk's other defaults is the reference of its difference column
+        refs = {e: outs[i] for i, (e, _, s) in enumerate(configs) if s == SessionSettings(threads=1)}
         err = stated_error(m, graph)
-        for engine, label, s in configs:
-            step(f"{what} {graph} {grid[0]}x{grid[1]} {engine} {s.label(engine)}")
-            dump = tmp / f"out-{len(rows)}.npz"
-            spec = {"kind": "openvino" if engine == "openvino" else "onnx", "graph": graph, "size": list(grid),
-                    "runs": args.runs, "warmup": args.warmup, "threads": s.threads,
-                    "wait": "active" if s.spinning else "passive", "input": str(feed),
-                    "path": str(bundle.graph_path(graph)), "outputs": GRAPH_OUTPUTS[graph],
-                    "provider": "CPUExecutionProvider", "session": s.to_json(), "dump": str(dump)}
-            res = _run("exporter.bench.worker", spec, tmp, f"{graph} {engine} {s.label(engine)}")
-            with np.load(dump) as z:
-                outs = [z[k] for k in sorted(z.files, key=lambda n: int(n.split("_")[1]))]
-            refs.setdefault(engine, outs)
-            diff = max(float(np.max(np.abs(a - b))) for a, b in zip(outs, refs[engine]))
-            ort_diff = max(float(np.max(np.abs(a - b))) for a, b in zip(outs, refs["onnxruntime"])) \
+        first = len(rows)
+        for i, (engine, label, s) in enumerate(configs):
+            diff = max(float(np.max(np.abs(a - b))) for a, b in zip(outs[i], refs[engine])) \
+                if engine in refs else None
+            ort_diff = max(float(np.max(np.abs(a - b))) for a, b in zip(outs[i], refs["onnxruntime"])) \
                 if "onnxruntime" in refs else None
             rows.append({"work": what, "graph": graph, "grid": f"{grid[0]}x{grid[1]}", "engine": engine,
                          "setting": s.label(engine), "reference_row": label or None, "session": s.to_json(),
-                         **_stats(res["times_ms"]), "times_ms": [round(v, 3) for v in res["times_ms"]],
-                         "load_ms": res["load_ms"], "peak_rss_mb": res["peak_rss_mb"],
-                         "base_rss_mb": res["base_rss_mb"], **err, "max_abs_diff_vs_ref_run": diff,
-                         "max_abs_diff_vs_ort": ort_diff, "scheduling_only": diff <= SCHEDULING_NOISE})
+                         **_stats(times[i]), "times_ms": [round(v, 3) for v in times[i]],
+                         "peak_rss_mb": peak[i], "base_rss_mb": base[i], **err, "max_abs_diff_vs_ref_run": diff,
+                         "max_abs_diff_vs_ort": ort_diff,
+                         "scheduling_only": None if diff is None else diff <= SCHEDULING_NOISE})
         for engine in engines:
-            one = [r for r in rows if r["work"] == what and r["engine"] == engine and r["reference_row"] is None
-                   and r["session"] == SessionSettings(threads=1).to_json()]
+            mine = [r for r in rows[first:] if r["engine"] == engine and r["reference_row"] is None]
+            default = next((r for r in mine if r["session"] == SessionSettings(threads=2).to_json()), None)
+            for r in mine + [r for r in rows[first:] if r["engine"] == engine and r["reference_row"]]:
+                r["x_default"] = r["p50_ms"] / default["p50_ms"] if default else None
+            one = next((r for r in mine if r["session"] == SessionSettings(threads=1).to_json()), None)
             if one:
-                rows.append({"work": what, "graph": graph, "grid": one[0]["grid"], "engine": engine,
+                rows.append({"work": what, "graph": graph, "grid": one["grid"], "engine": engine,
                              "setting": "oracle",
                              "reference_row": "oracle: perfect 2-thread scaling (1-thread p50 / 2)",
-                             "p50_ms": one[0]["p50_ms"] / 2, "p95_ms": None, "p50_ci_ms": None, "n": 0,
+                             "p50_ms": one["p50_ms"] / 2, "p95_ms": None, "p50_ci_ms": None, "n": 0,
                              "peak_rss_mb": None, **err, "max_abs_diff_vs_ref_run": None,
-                             "max_abs_diff_vs_ort": None, "scheduling_only": None})
+                             "max_abs_diff_vs_ort": None, "scheduling_only": None,
+                             "x_default": one["p50_ms"] / 2 / default["p50_ms"] if default else None})
     return rows
 
 
 def lanes(args, engine: str, splits: list[str], tmp: Path, step) -> list[dict]:
+    """Every split in `args.rounds` fresh daemons, the order reversed every other round, counts pooled."""
+    got: dict[str, dict] = {k: {"previews": [], "refines": [], "window_s": 0.0, "peak_rss_mb": 0.0}
+                            for k in splits}
+    for rnd in range(args.rounds):
+        for split in splits[::-1 if rnd % 2 else 1]:
+            label, main_t, preview_t, refine = SPLITS[split]
+            step(f"lanes {engine}: {label} (round {rnd + 1})")
+            spec = {"bundle": str(args.bundle.resolve()), "engine": engine, "threads": main_t,
+                    "preview_threads": preview_t, "seconds": args.seconds, "refine": bool(refine),
+                    "previews": refine is not None,
+                    "trusted_keys": str(args.trusted_keys.resolve()) if args.trusted_keys else None}
+            res = _run("exporter.bench.lanes", spec, tmp, f"lanes {label}")
+            g = got[split]
+            g["previews"] += res["previews"]
+            g["refines"] += res["refines"]
+            g["window_s"] += res["window_s"]
+            g["peak_rss_mb"] = max(g["peak_rss_mb"], res["peak_rss_mb"])
+            g["engine"] = res["engine"]
     rows = []
     for split in splits:
         label, main_t, preview_t, refine = SPLITS[split]
-        step(f"lanes {engine}: {label}")
-        spec = {"bundle": str(args.bundle.resolve()), "engine": engine, "threads": main_t,
-                "preview_threads": preview_t, "seconds": args.seconds, "refine": bool(refine),
-                "trusted_keys": str(args.trusted_keys.resolve()) if args.trusted_keys else None}
-        if refine is None:  # refinements alone: the refiner is the drawer's only job
-            spec["refine"], spec["previews"] = True, False
-        res = _run("exporter.bench.lanes", spec, tmp, f"lanes {label}")
-        window = res["window_s"]
-        pv, rf = res["previews"], res["refines"]
-        row = {"split": label, "id": split, "engine": res["engine"], "main_threads": main_t,
-               "preview_threads": preview_t,
-               "refining": refine is not False, "previewing": refine is not None, "window_s": window,
-               "preview_fps": len(pv) / window if refine is not None else None,
-               "refines_per_s": len(rf) / window if refine is not False else None,
-               "preview": _stats([e["ms"] for e in pv]), "refine": _stats([e["ms"] for e in rf]),
-               "preview_grid": pv[0]["grid"] if pv else None, "refine_grid": rf[0]["grid"] if rf else None,
-               "peak_rss_mb": res["peak_rss_mb"], "reference_row": label if label.startswith("reference") else None}
-        rows.append(row)
+        g = got[split]
+        pv, rf, window = g["previews"], g["refines"], g["window_s"]
+        rows.append({"split": label, "id": split, "engine": g["engine"], "main_threads": main_t,
+                     "preview_threads": preview_t, "refining": refine is not False, "previewing": refine is not None,
+                     "window_s": window, "preview_fps": len(pv) / window if refine is not None else None,
+                     "refines_per_s": len(rf) / window if refine is not False else None,
+                     "preview": _stats([e["ms"] for e in pv]), "refine": _stats([e["ms"] for e in rf]),
+                     "preview_grid": pv[0]["grid"] if pv else None, "refine_grid": rf[0]["grid"] if rf else None,
+                     "peak_rss_mb": g["peak_rss_mb"],
+                     "reference_row": label if label.startswith("reference") else None})
     return rows
 
 
@@ -233,9 +266,9 @@ def _cell(v, fmt: str) -> str:
 
 
 def sweep_table(rows: list[dict]) -> str:
-    head = ("| work | graph | grid | engine | setting | p50 ms | p50 95% CI | p95 ms | peak RSS MiB | "
+    head = ("| work | graph | grid | engine | setting | p50 ms | p50 95% CI | p95 ms | x default | peak RSS MiB | "
             "error vs fp32 (bundle's stated) | max abs diff vs the engine's 1-thread run | vs ORT 1-thread |")
-    lines = [head, "|---|---|---|---|---|---:|---:|---:|---:|---:|---|---:|"]
+    lines = [head, "|---|---|---|---|---|---:|---:|---:|---:|---:|---:|---|---:|"]
     for r in rows:
         ci = r.get("p50_ci_ms")
         if r["max_abs_diff_vs_ref_run"] is None:
@@ -259,6 +292,7 @@ def sweep_table(rows: list[dict]) -> str:
         lines.append(f"| {r['work']} | {r['graph']} | {r['grid']} | {r['engine']} | {name} | "
                      f"{_cell(r['p50_ms'], '{:.1f}')} | "
                      f"{'-' if not ci else f'{ci[0]:.1f}-{ci[1]:.1f}'} | {_cell(r['p95_ms'], '{:.1f}')} | "
+                     f"{_cell(r.get('x_default'), '{:.2f}')} | "
                      f"{_cell(r['peak_rss_mb'], '{:.0f}')} | {stated_s} | {diff} | "
                      f"{_cell(r.get('max_abs_diff_vs_ort'), '{:.1e}')} |")
     return "\n".join(lines)
@@ -337,7 +371,8 @@ def run_bench(args, argv: list[str], prog: str) -> dict:
         "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
                    "precision": {k: g.precision for k, g in m.graphs.items()}},
         "work": {k: {"graph": g, "grid": list(grid)} for k, (g, grid, _) in work.items()},
-        "settings": {"runs": args.runs, "warmup": args.warmup, "seconds": args.seconds, "engines": engines,
+        "settings": {"runs": args.runs, "warmup": args.warmup, "rounds": args.rounds, "seconds": args.seconds,
+                     "engines": engines,
                      "sweep": args.sweep, "splits": splits, "lanes_engine": args.lanes_engine if splits else None},
         "environment": env,
         "sweep": sweep_rows,
@@ -393,8 +428,9 @@ def plot(result: dict, out: Path) -> Path:
 
 def main(argv: list[str], prog: str = "vtkiosk bench threads") -> int:
     args = build_parser(prog).parse_args(argv)
-    if args.runs < 2 or args.warmup < 0 or not (0.5 <= args.seconds <= 600):
-        raise BenchError("--runs must be at least 2, --warmup at least 0, --seconds from 0.5 to 600")
+    if args.runs < 2 or args.warmup < 0 or not 1 <= args.rounds <= 20 or not (0.5 <= args.seconds <= 600):
+        raise BenchError("--runs must be at least 2, --warmup at least 0, --rounds from 1 to 20, --seconds from "
+                         "0.5 to 600")
     if not args.bundle.exists():
         raise BenchError(f"no bundle at {args.bundle}")
     result = run_bench(args, argv, prog)
