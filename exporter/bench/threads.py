@@ -235,7 +235,7 @@ def lanes(args, engine: str, splits: list[str], tmp: Path, step) -> list[dict]:
             label, main_t, preview_t, refine = SPLITS[split]
             step(f"lanes {engine}: {label} (round {rnd + 1})")
             spec = {"bundle": str(args.bundle.resolve()), "engine": engine, "threads": main_t,
-                    "preview_threads": preview_t, "seconds": args.seconds, "refine": bool(refine),
+                    "preview_threads": preview_t, "seconds": args.seconds, "refine": refine is not False,
                     "previews": refine is not None,
                     "trusted_keys": str(args.trusted_keys.resolve()) if args.trusted_keys else None}
             res = _run("exporter.bench.lanes", spec, tmp, f"lanes {label}")

@@ -21,7 +21,7 @@ def test_bench_threads_runs_end_to_end_and_writes_json(tmp_path):
     bundle, trusted = make_bundle(tmp_path, graph=conv_graph)
     out_json, out_png = tmp_path / "t.json", tmp_path / "t.png"
     proc = vtk("bench", "threads", "--bundle", bundle, "--trusted-keys", trusted, "--engines", "onnxruntime",
-               "--sweep", "threads", "--splits", "previews-alone,one-loop,2+1", "--runs", 2, "--warmup", 0,
+               "--sweep", "threads", "--splits", "previews-alone,refines-alone,one-loop,2+1", "--runs", 2, "--warmup", 0,
                "--rounds", 1, "--seconds", 0.5, "--json", out_json, "--plot", out_png, "--no-progress")
     assert proc.returncode == 0, proc.stderr
     assert "| work | graph | grid | engine | setting |" in proc.stdout and "| split | preview fps |" in proc.stdout
@@ -41,8 +41,9 @@ def test_bench_threads_runs_end_to_end_and_writes_json(tmp_path):
         assert r["max_abs_diff_vs_ref_run"] is not None and r["scheduling_only"]  # thread count: same result
     assert {r["work"] for r in res["sweep"] if r["setting"] == "oracle"} == {"preview", "refine"}
     splits = {r["id"]: r for r in res["lanes"]}
-    assert set(splits) == {"previews-alone", "one-loop", "2+1"}
+    assert set(splits) == {"previews-alone", "refines-alone", "one-loop", "2+1"}
     assert splits["previews-alone"]["refines_per_s"] is None and splits["previews-alone"]["preview"]["n"] > 0
+    assert splits["refines-alone"]["preview_fps"] is None and splits["refines-alone"]["refine"]["n"] > 0
     for key in ("one-loop", "2+1"):
         assert splits[key]["preview"]["n"] > 0 and splits[key]["refine"]["n"] > 0
         assert splits[key]["preview_grid"] == res["work"]["preview"]["grid"]
