@@ -18,7 +18,8 @@ resolution):
 
 Each configuration and split is measured in `--rounds` fresh processes, the order reversed every other round, so
 a load that drifts over minutes (two training runs share this project's machine) does not favour whichever ran
-first. Prints both tables, writes JSON and a PNG. Nothing here imports torch.
+first. Prints both tables, writes JSON and a PNG. The measuring processes import no torch (the parent reads its
+version for the environment record, as `bench infer` does, when it is installed).
 """
 from __future__ import annotations
 
@@ -391,7 +392,8 @@ def plot(result: dict, out: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(15, max(4.0, 0.28 * len(sweep_rows) + 1.5)),
                              gridspec_kw={"width_ratios": [3, 2]})
     ax = axes[0]
-    labels = [f"{r['work']} {r['grid']} {r['engine'][:4]} {r['setting']}" for r in sweep_rows]
+    short = {"onnxruntime": "ORT", "openvino": "OV"}
+    labels = [f"{r['work']} {r['grid']} {short[r['engine']]} {r['setting']}" for r in sweep_rows]
     y = np.arange(len(sweep_rows))
     colours = ["tab:blue" if r["engine"] == "onnxruntime" else "tab:orange" for r in sweep_rows]
     ax.barh(y, [r["p50_ms"] for r in sweep_rows], color=colours, alpha=0.8, label="p50")
