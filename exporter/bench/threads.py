@@ -11,10 +11,10 @@ resolution):
    of the same graph, beside the measured largest output difference to a 1-thread ONNX Runtime run of the same
    graph: zero or float-reduction noise for a setting that only changes scheduling). Reference rows: the engine
    library's own defaults (untuned) and the oracle of perfect 2-thread scaling (1-thread p50 / 2).
-2. Lanes: preview frames/s and latency while refinements run back to back, per thread split, in the kiosk's own
-   daemon (`exporter/bench/lanes.py`): one loop for everything (previews wait for a running refinement), or a
-   preview lane beside the refinement with its own threads. Reference rows: previews alone (the oracle for the
-   preview) and refinements alone.
+2. Lanes: preview frames/s and latency while refinements run back to back, per thread split, in the kiosk itself
+   (`kiosk/bench/lanes.py`: `vtkiosk serve` driven over loopback HTTP): one loop for everything (previews wait for
+   a running refinement), or a preview lane beside the refinement with its own threads. Reference rows: previews
+   alone (the oracle for the preview) and refinements alone.
 
 Each configuration and split is measured in `--rounds` fresh processes, the order reversed every other round, so
 a load that drifts over minutes (two training runs share this project's machine) does not favour whichever ran
@@ -106,14 +106,12 @@ def planned_work(bundle) -> dict[str, tuple[str, tuple[int, int], object]]:
     from kiosk.contract.panels import DEFAULT_PANEL, KNOWN_PANELS
     from kiosk.inference.engine import LoadedBundle
     from kiosk.inference.scene import Panel, Planner, Scene, SketchInput
-    from kiosk.service.config import InferenceConfig
 
-    inf, p = InferenceConfig(), KNOWN_PANELS[DEFAULT_PANEL]
+    p = KNOWN_PANELS[DEFAULT_PANEL]
     loaded = LoadedBundle(bundle)
     scene = Scene((Panel("main", (0, 0, p.width_px, p.height_px), loaded.key, sketch="reference"),),
                   (p.width_px, p.height_px))
-    planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
-                      margin_px=inf.margin_px, panel_pitch_mm=p.pitch_mm)
+    planner = Planner(panel_pitch_mm=p.pitch_mm)  # the planner's defaults are the kiosk config's
     out = {}
     for what, preview in (("preview", True), ("refine", False)):
         pp = planner.plan(scene, {"main": SketchInput(base=True)}, {loaded.key: loaded}, preview=preview).panels[0]
@@ -239,7 +237,7 @@ def lanes(args, engine: str, splits: list[str], tmp: Path, step) -> list[dict]:
                     "preview_threads": preview_t, "seconds": args.seconds, "refine": refine is not False,
                     "previews": refine is not None,
                     "trusted_keys": str(args.trusted_keys.resolve()) if args.trusted_keys else None}
-            res = _run("exporter.bench.lanes", spec, tmp, f"lanes {label}")
+            res = _run("kiosk.bench.lanes", spec, tmp, f"lanes {label}")
             g = got[split]
             g["previews"] += res["previews"]
             g["refines"] += res["refines"]

@@ -253,11 +253,11 @@ class KioskDaemon:
 
     # -- rendering -----------------------------------------------------------------------------------------------
     def show(self, scene: Scene, sketches: dict[str, SketchInput] | None = None, *, preview: bool = False,
-             client: str = "api", timeout_s: float | None = None, mode: str | None = None) -> FrameResult:
+             client: str = "api", timeout_s: float | None = None) -> FrameResult:
         """Render a scene (what the study calls): plan, infer at full resolution in one step, put the friction
         frame on the device. Returns when the visual is ready; `wait_commit(result.device_frame)` waits for the
-        device. `mode` overrides (`refine`: what the page asks after a quick first answer)."""
-        req = RenderRequest(scene, dict(sketches or {}), mode or ("preview" if preview else "full"), client)
+        device."""
+        req = RenderRequest(scene, dict(sketches or {}), "preview" if preview else "full", client)
         return self._submit(req, time.monotonic(), timeout_s)
 
     def _submit(self, req: RenderRequest, received_at: float, timeout_s: float | None = None) -> FrameResult:
