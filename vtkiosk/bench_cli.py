@@ -1,8 +1,9 @@
-"""`vtkiosk bench infer|e2e|haptics`: route to the benchmark that owns each measurement.
+"""`vtkiosk bench infer|e2e|haptics|threads`: route to the benchmark that owns each measurement.
 
 `infer` measures bundles (and PyTorch eager beside them, when torch is installed), so it lives on the exporter side;
 `e2e` drives a running kiosk daemon and must never import torch, so it lives in `kiosk/`. Imported lazily for that
-reason. `haptics` uses the synthetic fabrics' truth (trainer), so it lives on the exporter side too.
+reason. `haptics` uses the synthetic fabrics' truth (trainer), so it lives on the exporter side too. `threads` times
+bundles in worker processes as `infer` does, so it sits beside it (it imports no torch).
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "infer": ("exporter.bench.infer", "latency, memory and error of a bundle's graphs per size x precision"),
     "e2e": ("kiosk.bench.e2e", "stroke end -> friction frame committed / visual shown, against a live daemon"),
     "haptics": ("exporter.bench.haptics", "felt texture period, contrast and fabric distinguishability at true scale"),
+    "threads": ("exporter.bench.threads", "engine session settings and preview/refine thread splits on this CPU"),
 }
 
 

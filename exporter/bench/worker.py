@@ -5,7 +5,9 @@ torch in the number) and keeps one configuration's threads from disturbing the n
 (+ ONNX Runtime execution provider, or OpenVINO: kind `openvino`, with the `outputs` to fetch) or a training run for
 PyTorch eager, the input (.npz with `sketch` and `mask`), runs,
 warm-up runs, threads and the threads' wait policy (`passive` or `active` spinning, for both runtimes); optionally
-`profile` (ONNX Runtime per-op-type time shares).
+`session` (the kiosk's `SessionSettings` as JSON: arena, memory pattern, execution mode, OpenVINO streams and hint;
+it then decides the threads and waiting too), `profile` (ONNX Runtime per-op-type time shares) and `dump` (an .npz
+the last run's outputs are written to, for the error column).
 
 Output: latencies in ms, session load time, `base_rss_mb` (the process after imports, before the model) and
 `peak_rss_mb` (the process's peak resident set, VmHWM, at the end: interpreter + runtime + model + activations).
@@ -54,6 +56,9 @@ def _onnx_runner(spec: dict, feed: dict):
     # passive: idle worker threads sleep instead of spinning (ORT's default spins; on a shared CPU that doubles
     # latency here). PyTorch gets the same through OMP_WAIT_POLICY, set by the parent before this process starts.
     opts = session_options(int(spec["threads"]), spinning=spec.get("wait") != "passive")
+    if spec.get("session"):
+        from kiosk.inference.sessions import SessionSettings
+        opts = SessionSettings(**spec["session"]).ort_options()
     if spec.get("profile"):
         opts.enable_profiling = True
         opts.profile_file_prefix = str(Path(spec["profile"]) / "ort")
@@ -64,7 +69,9 @@ def _onnx_runner(spec: dict, feed: dict):
 
 def _openvino_runner(spec: dict, feed: dict):
     from kiosk.inference.backends import OpenVinoRunner
-    runner = OpenVinoRunner(Path(spec["path"]), int(spec["threads"]))
+    from kiosk.inference.sessions import SessionSettings
+    settings = SessionSettings(**spec["session"]) if spec.get("session") else int(spec["threads"])
+    runner = OpenVinoRunner(Path(spec["path"]), settings)
     outputs = list(spec["outputs"])
     runner.run(outputs, feed)  # compile for this shape now, so load_ms includes it (as the kiosk's activation does)
     return (lambda: runner.run(outputs, feed)), None
@@ -101,11 +108,13 @@ def measure(spec: dict) -> dict:
     load_ms = 1e3 * (time.perf_counter() - t0)
     for _ in range(int(spec["warmup"])):
         run()
-    times = []
+    times, last = [], None
     for _ in range(int(spec["runs"])):
         t = time.perf_counter()
-        run()
+        last = run()
         times.append(1e3 * (time.perf_counter() - t))
+    if spec.get("dump") and last is not None:
+        np.savez(spec["dump"], *[np.asarray(o) for o in last])
     out = {"times_ms": times, "load_ms": load_ms, "base_rss_mb": base, "peak_rss_mb": _rss_mb("VmHWM")}
     if sess is not None and spec.get("profile"):
         out["profile"] = _profile_summary(sess.end_profiling(), int(spec["runs"]) + int(spec["warmup"]))

@@ -19,6 +19,7 @@ from kiosk.bundle.archive import Bundle
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import letterbox, network_input, object_mask
 from kiosk.inference.backends import available, open_graph
+from kiosk.inference.sessions import SessionSettings
 from kiosk.inference.cpu import describe
 
 DEFAULT_BOUND_LEVELS = 0.5
@@ -76,7 +77,8 @@ def _feed(bundle: Bundle, grid: tuple[int, int]) -> dict[str, np.ndarray]:
 
 
 def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None = None, max_side: int = 512,
-                  runs: int = 3, engines: tuple[str, ...] | None = None) -> EngineChoice:
+                  runs: int = 3, engines: tuple[str, ...] | None = None,
+                  settings: SessionSettings | None = None) -> EngineChoice:
     """Benchmark the engines on every graph of the bundle and pick one (ONNX Runtime if nothing else qualifies)."""
     engines = tuple(engines or available())
     bound = error_bound(bundle)
@@ -92,7 +94,8 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
         try:
             for kind in kinds:
                 spec = bundle.manifest.graph(kind)
-                runner = open_graph(engine, bundle.graph_path(kind), threads=threads, providers=providers)
+                runner = open_graph(engine, bundle.graph_path(kind), threads=threads, providers=providers,
+                                    settings=settings)
                 outs = runner.run(spec.outputs, inputs[kind])  # warm-up: first-shape allocation is not timed
                 for i in range(runs):
                     t0 = time.perf_counter()

@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from dataclasses import replace
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 import onnxruntime as ort
 
-from kiosk.bundle.probe import session_options
 from kiosk.contract.errors import KioskError
+from kiosk.inference.sessions import SessionSettings
 
 ENGINES = ("onnxruntime", "openvino")
 
@@ -31,11 +32,13 @@ class Runner(Protocol):
 
 
 class OrtRunner:
-    def __init__(self, path: Path, threads: int, providers: list[str]):
-        self._sess = ort.InferenceSession(str(path), session_options(threads), providers=providers)
+    def __init__(self, path: Path, settings: SessionSettings, providers: list[str]):
+        self._sess = ort.InferenceSession(str(path), settings.ort_options(), providers=providers)
+        self._options = ort.RunOptions()
+        self._options.log_severity_level = 3
 
     def run(self, outputs: list[str], feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
-        return self._sess.run(outputs, feeds)
+        return self._sess.run(outputs, feeds, self._options)
 
 
 class OpenVinoRunner:
@@ -45,11 +48,11 @@ class OpenVinoRunner:
 
     MAX_SHAPES = 8
 
-    def __init__(self, path: Path, threads: int):
+    def __init__(self, path: Path, settings: SessionSettings | int):
         self._ov = _openvino()
         self._core = self._ov.Core()
         self._path = str(path)
-        self._threads = threads
+        self._settings = settings if isinstance(settings, SessionSettings) else SessionSettings(threads=settings)
         self._model = self._core.read_model(self._path)
         self._compiled: OrderedDict[tuple, tuple] = OrderedDict()
         self._lock = threading.Lock()
@@ -60,9 +63,7 @@ class OpenVinoRunner:
         if hit is None:
             model = self._model.clone()
             model.reshape({k: list(v.shape) for k, v in feeds.items()})
-            # f32 hint: on bf16/AMX CPUs the plugin would otherwise compute in bf16, outside the bundle's error
-            compiled = self._core.compile_model(model, "CPU", {"INFERENCE_NUM_THREADS": self._threads,
-                                                               "INFERENCE_PRECISION_HINT": "f32"})
+            compiled = self._core.compile_model(model, "CPU", self._settings.openvino_config())
             hit = (compiled, compiled.create_infer_request())
             self._compiled[key] = hit
             while len(self._compiled) > self.MAX_SHAPES:
@@ -95,10 +96,13 @@ def available() -> tuple[str, ...]:
     return ENGINES
 
 
-def open_graph(engine: str, path: Path, *, threads: int, providers: list[str] | None = None) -> Runner:
-    """Load one ONNX graph in the named engine. Raises EngineUnavailable, or the engine's own error on a bad graph."""
+def open_graph(engine: str, path: Path, *, threads: int, providers: list[str] | None = None,
+               settings: SessionSettings | None = None) -> Runner:
+    """Load one ONNX graph in the named engine with `settings` (the engine's arena, streams ...) and `threads` (the
+    caller's lane decides those). Raises EngineUnavailable, or the engine's own error on a bad graph."""
+    settings = replace(settings or SessionSettings(), threads=threads)
     if engine == "onnxruntime":
-        return OrtRunner(path, threads, providers or ["CPUExecutionProvider"])
+        return OrtRunner(path, settings, providers or ["CPUExecutionProvider"])
     if engine == "openvino":
-        return OpenVinoRunner(path, threads)
+        return OpenVinoRunner(path, settings)
     raise EngineUnavailable(f"unknown inference engine {engine!r} (one of {', '.join(ENGINES)})")

@@ -1,11 +1,14 @@
 """Inference: a verified bundle's engine sessions, the output cache, and finite checks on every output.
 
-One `LoadedBundle` per garment holds its sessions (created on first use per graph kind, in the configured engine
-(`kiosk.inference.backends`; `auto` picks one at construction by timing them), with the configured threads and
-provider; `warm()` creates and runs them ahead of the first stroke), its friction calibration and its
-reference assets. Outputs are checked before anything downstream sees them: a graph that returns NaN/Inf raises
-`NonFiniteOutput` and the daemon keeps its last good frame. `OutputCache` keeps recent outputs by the planner's
-content key, so an unchanged sketch (undo, a re-layout, a device reconnect) costs no inference.
+One `LoadedBundle` per garment holds its sessions (created on first use per graph kind and lane, in the configured
+engine (`kiosk.inference.backends`; `auto` picks one at construction by timing them), with the configured session
+settings and provider; `warm()` creates and runs them ahead of the first stroke), its friction calibration and its
+reference assets. A lane is who runs the graph: `main` (stroke ends, refinements) or `preview` (while drawing); with
+`preview_threads` the preview lane has sessions of its own with that many threads, so a preview computed beside a
+running refinement does not queue for the refinement's thread pool. Outputs are checked before anything downstream
+sees them: a graph that returns NaN/Inf raises `NonFiniteOutput` and the daemon keeps its last good frame.
+`OutputCache` keeps recent outputs by the planner's content key, so an unchanged sketch (undo, a re-layout, a device
+reconnect) costs no inference.
 
 Shapes: visual is kept as RGBA uint8 (H, W, 4) (alpha = the object mask: what the page draws), tactile as float32
 (2, H, W) (gx, gy), both at the network grid.
@@ -28,10 +31,12 @@ from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import BundleError
 from kiosk.inference.autoselect import EngineChoice, choose_engine
 from kiosk.inference.backends import Runner, open_graph
+from kiosk.inference.sessions import SessionSettings
 from kiosk.contract.graph import OUTPUT_CHANNELS, feeds
 from kiosk.contract.sketch import NetworkInput
 
 MODALITIES = ("visual", "tactile")
+LANES = ("main", "preview")
 
 
 class InferenceError(KioskError):
@@ -116,7 +121,10 @@ class LoadedBundle:
 
     def __init__(self, bundle: Bundle, *, threads: int = 2, providers: list[str] | None = None,
                  precisions: tuple[str, ...] = ("int8", "fp32", "fp16"), owned_dir: Path | None = None,
-                 source: str = "", engine: str = "onnxruntime", auto_max_side: int = 512, auto_runs: int = 3):
+                 source: str = "", engine: str = "onnxruntime", auto_max_side: int = 512, auto_runs: int = 3,
+                 preview_threads: int = 0, settings: SessionSettings | None = None):
+        """`preview_threads`: threads of the preview lane's own sessions; 0: previews use the main lane's.
+        `settings`: the engine's session settings (`threads` is replaced by the lane's)."""
         m = bundle.manifest
         for kind, spec in m.graphs.items():
             if spec.precision not in precisions:
@@ -126,16 +134,18 @@ class LoadedBundle:
         self.manifest = m
         self.source = source
         self.threads = threads
+        self.preview_threads = preview_threads
+        self.settings = settings or SessionSettings()
         self.providers = providers or ["CPUExecutionProvider"]
         self.owned_dir = owned_dir
         digest = hashlib.sha256((bundle.root / MANIFEST).read_bytes()).hexdigest()[:16]
         self.key = f"{m.garment_id}@{m.model_version}#{digest}"
-        self._sessions: dict[str, Runner] = {}
+        self._sessions: dict[tuple[str, str], Runner] = {}
         self.engine_choice: EngineChoice | None = None
         if engine == "auto":
             try:
                 self.engine_choice = choose_engine(bundle, threads=threads, providers=self.providers,
-                                                   max_side=auto_max_side, runs=auto_runs)
+                                                   max_side=auto_max_side, runs=auto_runs, settings=self.settings)
             except Exception as exc:  # noqa: BLE001 - the reference engine itself failed: the bundle is unusable
                 raise InferenceError(f"{m.garment_id}: engine benchmark failed ({exc})") from exc
             engine = self.engine_choice.engine
@@ -202,22 +212,31 @@ class LoadedBundle:
                 "engine_choice": self.engine_choice.to_json() if self.engine_choice else None}
 
     # -- sessions ------------------------------------------------------------------------------------------------
-    def session(self, kind: str) -> Runner:
+    def lane_of(self, lane: str) -> str:
+        """The lane whose sessions serve `lane`: the preview lane has its own only with `preview_threads`."""
+        if lane not in LANES:
+            raise ValueError(f"lane must be one of {', '.join(LANES)}; got {lane!r}")
+        return "preview" if lane == "preview" and self.preview_threads > 0 else "main"
+
+    def session(self, kind: str, lane: str = "main") -> Runner:
+        lane = self.lane_of(lane)
         with self._lock:
-            sess = self._sessions.get(kind)
+            sess = self._sessions.get((kind, lane))
             if sess is None:
                 path = self.bundle.graph_path(kind)
+                threads = self.preview_threads if lane == "preview" else self.threads
                 try:
-                    sess = open_graph(self.engine, path, threads=self.threads, providers=self.providers)
+                    sess = open_graph(self.engine, path, threads=threads, providers=self.providers,
+                                      settings=self.settings)
                 except Exception as exc:  # noqa: BLE001 - the engines' own exception types; all mean "unusable"
                     raise InferenceError(f"{self.garment_id}: graph {kind} does not load ({exc})") from exc
-                self._sessions[kind] = sess
+                self._sessions[(kind, lane)] = sess
             return sess
 
-    def run(self, kind: str, inputs: NetworkInput) -> RunResult:
-        """Run one graph; raise NonFiniteOutput/InferenceError instead of returning anything unusable."""
+    def run(self, kind: str, inputs: NetworkInput, lane: str = "main") -> RunResult:
+        """Run one graph in `lane`; raise NonFiniteOutput/InferenceError instead of returning anything unusable."""
         spec = self.manifest.graph(kind)
-        sess = self.session(kind)
+        sess = self.session(kind, lane)
         h, w = inputs.sketch.shape[2:]
         t0 = time.perf_counter()
         try:
@@ -240,16 +259,17 @@ class LoadedBundle:
             result[name] = out
         return RunResult(result, ms)
 
-    def warm(self, kinds: tuple[str, ...], grids: list[tuple[int, int]]) -> list[tuple[str, tuple[int, int], float]]:
-        """Create the sessions and run each (kind, grid) once on an empty sketch, so the first stroke does not pay
-        session creation and first-shape allocation. Returns (kind, grid, ms) per run."""
+    def warm(self, kinds: tuple[str, ...], grids: list[tuple[int, int]], lane: str = "main"
+             ) -> list[tuple[str, tuple[int, int], float]]:
+        """Create the sessions of `lane` and run each (kind, grid) once on an empty sketch, so the first stroke does
+        not pay session creation and first-shape allocation. Returns (kind, grid, ms) per run."""
         out = []
         for kind in kinds:
             if kind not in self.manifest.graphs:
                 continue
             for gw, gh in grids:
                 x = NetworkInput(np.zeros((1, 1, gh, gw), np.float32), np.zeros((1, 1, gh, gw), np.float32))
-                out.append((kind, (gw, gh), self.run(kind, x).ms))
+                out.append((kind, (gw, gh), self.run(kind, x, lane).ms))
         return out
 
     def close(self) -> None:

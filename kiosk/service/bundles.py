@@ -21,6 +21,7 @@ from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import grid_floor
 from kiosk.inference.backends import ENGINES
 from kiosk.inference.engine import LoadedBundle
+from kiosk.inference.scene import choose_graph
 from kiosk.ops.health import CheckResult
 from kiosk.service.config import KioskConfig
 from kiosk.service.metrics import ServiceMetrics
@@ -72,7 +73,8 @@ class BundleSet:
         inf = self.config.inference
         return LoadedBundle(bundle, threads=inf.threads, providers=inf.providers, precisions=inf.precisions,
                             owned_dir=owned, source=source, engine=inf.engine.type,
-                            auto_max_side=inf.max_resolution, auto_runs=inf.engine.auto_runs)
+                            auto_max_side=inf.max_resolution, auto_runs=inf.engine.auto_runs,
+                            preview_threads=inf.preview_threads, settings=inf.session_settings())
 
     def candidates(self) -> list[tuple[str, Callable[[], LoadedBundle]]]:
         """(source description, loader) for every bundle the kiosk should serve now."""
@@ -115,6 +117,8 @@ class BundleSet:
             grid = (grid_floor(min(cw, inf.max_resolution)), grid_floor(min(ch, inf.max_resolution)))
             preview = (min(grid[0], inf.preview_max_resolution), min(grid[1], inf.preview_max_resolution))
             runs = lb.warm((kind,), [preview, grid, grid, grid, grid])  # the first run at `grid` allocates
+            if lb.lane_of("preview") == "preview" and kind == choose_graph(("visual",), lb.graphs()):
+                lb.warm((kind,), [preview], lane="preview")  # the one graph previews run, in their own lane
             ms = min(r[2] for r in runs[2:])
             results[kind] = {"grid": list(grid), "ms": round(ms, 1)}
             if ms > budget:

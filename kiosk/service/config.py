@@ -22,6 +22,7 @@ from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRID_MULTIPLE
 from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
+from kiosk.inference.sessions import EXECUTION_MODES, OPENVINO_HINTS, SessionSettings
 from kiosk.contract.panels import DEFAULT_PANEL, KNOWN_PANELS
 
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider",
@@ -71,12 +72,44 @@ ENGINE_TYPES = ("onnxruntime", "openvino", "auto")
 
 
 @dataclass(frozen=True)
+class OrtSessionConfig:
+    """ONNX Runtime session settings (`kiosk.inference.sessions`; defaults measured by `vtkiosk bench threads`,
+    docs/performance.md). mem_arena: keep freed activation memory in ONNX Runtime's own arena; mem_pattern: plan
+    activation memory once per input shape; execution_mode: sequential or parallel execution of independent nodes."""
+
+    mem_arena: bool = True
+    mem_pattern: bool = True
+    execution_mode: str = "sequential"
+
+    def __post_init__(self) -> None:
+        _check(self.execution_mode in EXECUTION_MODES,
+               f"inference.engine.onnxruntime.execution_mode must be one of {', '.join(EXECUTION_MODES)}")
+
+
+@dataclass(frozen=True)
+class OpenVinoSessionConfig:
+    """OpenVINO compile settings: streams (requests the CPU plugin runs at once, sharing the threads) and the
+    performance hint (latency: one request on every thread; throughput: threads split between streams)."""
+
+    streams: int = 1
+    hint: str = "latency"
+
+    def __post_init__(self) -> None:
+        _check(1 <= self.streams <= 16, "inference.engine.openvino.streams must be an integer from 1 to 16")
+        _check(self.hint in OPENVINO_HINTS,
+               f"inference.engine.openvino.hint must be one of {', '.join(OPENVINO_HINTS)}")
+
+
+@dataclass(frozen=True)
 class EngineConfig:
     """Which engine runs the bundle's ONNX graphs (`kiosk.inference.backends`). auto: time the installed engines on
-    each bundle at activation and keep the fastest inside the bundle's stated error (auto_runs timed runs each)."""
+    each bundle at activation and keep the fastest inside the bundle's stated error (auto_runs timed runs each).
+    `onnxruntime` and `openvino`: each engine's session settings (used whenever that engine runs, auto included)."""
 
     type: str = "onnxruntime"
     auto_runs: int = 3
+    onnxruntime: OrtSessionConfig = field(default_factory=OrtSessionConfig)
+    openvino: OpenVinoSessionConfig = field(default_factory=OpenVinoSessionConfig)
 
     def __post_init__(self) -> None:
         _check(self.type in ENGINE_TYPES, f"inference.engine.type must be one of {', '.join(ENGINE_TYPES)}")
@@ -95,13 +128,16 @@ class InferenceConfig:
     max_resolution: the longest network-grid side the planner may use (a multiple of 256; also capped by the
     bundle's declared sizes). preview_max_resolution: the same while a stroke is being drawn.
     latency_budget_ms: a new bundle must answer its probe within this, and the inference loop's p95 must stay
-    under it for the kiosk to count as healthy. refine: answer a stroke end first at the preview resolution (visual
-    and friction), then at full resolution (the page asks for the refinement at once). precisions: the graph
-    precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
+    under it for the kiosk to count as healthy. threads: the main lane's threads (stroke ends and refinements).
+    preview_threads: previews while drawing run in a lane of their own with this many threads, beside a running
+    refinement instead of queued behind it; 0 runs them in the one main loop, in turn with everything else.
+    refine: answer a stroke end first at the preview resolution (visual and friction), then at full resolution (the
+    page asks for the refinement at once). precisions: the graph precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
     kiosk, is refused at load with a clear reason).
     """
 
     threads: int = 2
+    preview_threads: int = 1
     provider: str = "cpu"
     precisions: tuple[str, ...] = ("int8", "fp32", "fp16")
     latency_budget_ms: float = 100.0
@@ -114,6 +150,8 @@ class InferenceConfig:
 
     def __post_init__(self) -> None:
         _check(1 <= self.threads <= 64, "inference.threads must be an integer from 1 to 64")
+        _check(0 <= self.preview_threads <= 64, "inference.preview_threads must be an integer from 0 (previews share "
+               "the main loop) to 64")
         _check(self.provider in PROVIDERS, f"inference.provider must be one of {', '.join(PROVIDERS)}")
         _check(len(self.precisions) > 0 and all(p in PRECISIONS for p in self.precisions),
                f"inference.precisions must be a non-empty list of {', '.join(PRECISIONS)}")
@@ -126,6 +164,12 @@ class InferenceConfig:
                "inference.preview_max_resolution must not exceed inference.max_resolution")
         _check(0 <= self.margin_px <= 512, "inference.margin_px must be from 0 to 512")
         _check(0 <= self.cache_mb <= 4096, "inference.cache_mb must be from 0 to 4096 (MiB of cached outputs)")
+
+    def session_settings(self) -> SessionSettings:
+        """Both engines' session settings (the lane decides the threads)."""
+        ort_cfg, ov = self.engine.onnxruntime, self.engine.openvino
+        return SessionSettings(threads=self.threads, mem_arena=ort_cfg.mem_arena, mem_pattern=ort_cfg.mem_pattern,
+                               execution_mode=ort_cfg.execution_mode, streams=ov.streams, hint=ov.hint)
 
     @property
     def providers(self) -> list[str]:

@@ -72,8 +72,11 @@ class KioskDaemon:
         self.bundle_set = BundleSet(config, self.series, bundle_sources)
         self.frames = FrameRenderer(self.planner, self.cache, self.device, self.series, quick_first=inf.refine)
         self.jobs = JobQueue()
+        lanes = inf.preview_threads > 0
         self.loop = InferenceLoop(self.jobs, Heartbeat(), self._execute, before=self._before_job,
-                                  idle=self.bundle_set.close_retired)
+                                  idle=self.bundle_set.close_retired, lane="main" if lanes else None)
+        self.preview_loop = InferenceLoop(self.jobs, Heartbeat(), self._execute, lane="preview",
+                                          name="vtkiosk-preview") if lanes else None
         self.heartbeat = self.loop.heartbeat
         self.notifier = notifier if notifier is not None else Notifier.from_env()
         self.watchdog: Watchdog | None = None
@@ -125,6 +128,8 @@ class KioskDaemon:
                 raise BundleError(f"no bundle could be loaded ({reasons})")
             self.device.start()
             self.loop.start()
+            if self.preview_loop is not None:
+                self.preview_loop.start()
             Routes(self.config, self.series, self.bundle_set, self.frames, self.device, self.health,
                    submit=self._submit, status=self.status).install(self.server)
             self.server.start()
@@ -151,6 +156,8 @@ class KioskDaemon:
             self.control = None
         self.server.stop()
         self.loop.stop()
+        if self.preview_loop is not None:
+            self.preview_loop.stop()
         self.device.stop()
         self.bundle_set.close()
         if self.bundle_set.workdir is not None:
@@ -163,6 +170,9 @@ class KioskDaemon:
         budget = self.config.inference.latency_budget_ms / 1e3
         self.add_health_check("inference", lambda: self.heartbeat.check(stale_after_s=h.stale_after_s,
                                                                         budget_s=budget))
+        if self.preview_loop is not None:
+            beat = self.preview_loop.heartbeat
+            self.add_health_check("preview", lambda: beat.check(stale_after_s=h.stale_after_s, budget_s=budget))
         if h.require_device:
             dev = device_check(self._link_health, max_heartbeat_age_s=h.device_max_heartbeat_age_s)
             self.add_health_check("device", dev)
@@ -225,9 +235,10 @@ class KioskDaemon:
             raise InputError("fault injection is off (debug.fault_injection: false)")
         emu = self.device.emulator
         if op == "debug.hang":
-            hang = self.loop.hang
-            (hang.set if req.get("on", True) else hang.clear)()
-            return {"hang": hang.is_set()}
+            loops = [self.loop] + ([self.preview_loop] if self.preview_loop is not None else [])
+            for loop in loops:
+                (loop.hang.set if req.get("on", True) else loop.hang.clear)()
+            return {"hang": self.loop.hang.is_set()}
         if op == "debug.nonfinite":
             for b in self.bundle_set.serving.values():
                 b.fault_nonfinite = bool(req.get("on", True))

@@ -74,7 +74,9 @@ class FrameResult:
 
 
 class FrameRenderer:
-    """Plans and renders one job at a time (the inference loop's `execute`); keeps what the page and device show."""
+    """Plans and renders jobs (the inference loops' `execute`); keeps what the page and device show. With a preview
+    lane two jobs render at once, a preview beside a stroke end or refinement: a preview never touches the device's
+    textures, and shared state is replaced whole, never mutated in place."""
 
     def __init__(self, planner: Planner, cache: OutputCache, device: DeviceOutput, metrics: ServiceMetrics, *,
                  quick_first: bool):
@@ -114,7 +116,8 @@ class FrameRenderer:
         timings = {"queue_ms": 1e3 * (t_start - received_at), "rasterize_ms": plan.rasterize_ms,
                    "plan_ms": plan.plan_ms, "inference_ms": 0.0, "visual_ms": 0.0}
         notices: dict[str, str] = {}
-        results = [self._render_panel(pp, bundles[pp.bundle], timings, notices, held) for pp in plan.panels]
+        lane = "preview" if req.preview else "main"
+        results = [self._render_panel(pp, bundles[pp.bundle], timings, notices, held, lane) for pp in plan.panels]
         plan_json = plan.to_json()
         self.last_plan = plan_json
         self.metrics.pixels.inc(plan.computed_pixels, plan="planned")
@@ -168,7 +171,7 @@ class FrameRenderer:
         return held
 
     def _render_panel(self, pp: PanelPlan, bundle: LoadedBundle, timings: dict, notices: dict,
-                      held: dict[tuple[str, str], np.ndarray]) -> PanelResult:
+                      held: dict[tuple[str, str], np.ndarray], lane: str = "main") -> PanelResult:
         """Carry out the planner's decision for one panel: reuse what it reuses, run the graph it chose, make
         friction for what it needs (the planner leaves tactile out of a preview's needs)."""
         if pp.graph == "none" and not pp.reused:
@@ -184,7 +187,7 @@ class FrameRenderer:
             self.metrics.cache.inc(len(pp.needs) - len(have), result="miss")
             try:
                 t0 = time.perf_counter()
-                run = bundle.run(pp.graph, pp.inputs)
+                run = bundle.run(pp.graph, pp.inputs, lane)
                 timings["inference_ms"] += 1e3 * (time.perf_counter() - t0)
                 self.metrics.graph_runs.inc(graph=pp.graph)
             except NonFiniteOutput as exc:

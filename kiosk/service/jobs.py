@@ -1,6 +1,9 @@
-"""Render jobs: the queue between the HTTP threads and the one inference loop, with latest-wins cancellation.
+"""Render jobs: the queue between the HTTP threads and the inference loops, with latest-wins cancellation.
 
-One loop runs every job, so inference never competes with itself for the cores. An HTTP thread submits a job and
+The main loop runs stroke ends and refinements one at a time, so they never compete with each other for the cores.
+Previews while drawing run either in that loop too, in turn (a preview that arrives during a refinement waits for
+all of it), or in a preview loop of their own (`inference.preview_threads`), beside the refinement on a thread
+budget of their own, so drawing stays fluid while the last stroke end is refined. An HTTP thread submits a job and
 waits for it; a newer request from the same client cancels that client's queued previews and refinements (a stroke
 end is never dropped), and a job not answered in time is withdrawn so the page keeps its last frame.
 """
@@ -30,7 +33,7 @@ class Superseded(Exception):
     """A preview or refinement replaced by a newer request before it ran."""
 
 
-@dataclass
+@dataclass(eq=False)  # a job is itself: comparing requests field by field would compare their sketch arrays
 class Job:
     request: RenderRequest
     received_at: float
@@ -38,6 +41,11 @@ class Job:
     result: Any = None
     error: BaseException | None = None
     superseded: bool = False
+
+
+def lane_of(job: Job) -> str:
+    """`preview` for a preview while drawing, `main` for everything else (the engine lane it runs in)."""
+    return "preview" if job.request.mode == "preview" else "main"
 
 
 class JobQueue:
@@ -72,12 +80,20 @@ class JobQueue:
             raise job.error
         return job.result
 
-    def take(self, wait_s: float) -> Job | None:
-        """The oldest job, waiting up to `wait_s` for one."""
+    def take(self, wait_s: float, lane: str | None = None) -> Job | None:
+        """The oldest job of `lane` (`preview`: previews, `main`: everything else, None: any), waiting up to
+        `wait_s` for one."""
         with self._cond:
-            if not self._jobs:
+            job = self._first(lane)
+            if job is None:
                 self._cond.wait(wait_s)
-            return self._jobs.pop(0) if self._jobs else None
+                job = self._first(lane)
+            if job is not None:
+                self._jobs.remove(job)
+            return job
+
+    def _first(self, lane: str | None) -> Job | None:
+        return next((j for j in self._jobs if lane is None or lane_of(j) == lane), None)
 
     def put_back(self, job: Job) -> None:
         with self._cond:
@@ -91,11 +107,13 @@ class JobQueue:
 class InferenceLoop:
     """The thread that runs jobs one at a time: `execute(job) -> result`, `before(job)` first (a refinement waits
     for the quick answer's upload there), `idle()` between jobs. It beats the heartbeat while idle too, so a hung
-    loop, not a quiet shop, fails the health check."""
+    loop, not a quiet shop, fails the health check. `lane`: the jobs this loop takes (`JobQueue.take`)."""
 
     def __init__(self, queue: JobQueue, heartbeat: Heartbeat, execute: Callable[[Job], Any], *,
-                 before: Callable[[Job], None] = lambda job: None, idle: Callable[[], None] = lambda: None):
+                 before: Callable[[Job], None] = lambda job: None, idle: Callable[[], None] = lambda: None,
+                 lane: str | None = None, name: str = "vtkiosk-inference"):
         self.queue, self.heartbeat = queue, heartbeat
+        self.lane, self.name = lane, name
         self._execute, self._before, self._idle = execute, before, idle
         self.hang = threading.Event()  # fault injection: no beats, no work (the watchdog must notice)
         self._stop = threading.Event()
@@ -103,7 +121,7 @@ class InferenceLoop:
 
     def start(self) -> None:
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="vtkiosk-inference", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 10.0) -> None:
@@ -119,7 +137,7 @@ class InferenceLoop:
         while not self._stop.is_set():
             while self.hang.is_set() and not self._stop.is_set():
                 time.sleep(0.02)
-            job = self.queue.take(IDLE_BEAT_S)
+            job = self.queue.take(IDLE_BEAT_S, self.lane)
             if job is None:
                 self.heartbeat.beat()
                 self._idle()

@@ -28,7 +28,7 @@ def test_graphs_run_lazily_and_compute_the_declared_outputs(tmp_path):
     assert lb._sessions == {}
     x = _inputs()
     full = lb.run("full", x)
-    assert set(full.outputs) == {"visual", "tactile"} and set(lb._sessions) == {"full"}
+    assert set(full.outputs) == {"visual", "tactile"} and set(lb._sessions) == {("full", "main")}
     assert full.outputs["visual"].shape == (1, 3, 256, 256) and full.outputs["tactile"].shape == (1, 2, 256, 256)
     # The factory graph: tactile = 0.1 * (s, -s) * mask, visual = tanh(s, m, s) * mask.
     np.testing.assert_allclose(full.outputs["tactile"][0, 0], 0.1 * x.sketch[0, 0] * x.mask[0, 0], atol=1e-6)
