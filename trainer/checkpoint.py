@@ -8,6 +8,7 @@ checkpoint is an error the operator sees - never silently random weights (the pu
 """
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -15,6 +16,8 @@ import torch
 from torch import nn
 
 from trainer.errors import TrainerError
+
+log = logging.getLogger(__name__)
 
 
 class CheckpointError(TrainerError):
@@ -68,6 +71,21 @@ def bake_parametrizations(net: nn.Module) -> nn.Module:
     return net
 
 
+# SPADE's parameter-free norm once kept running statistics that evaluation used; training never did (it normalised
+# with each batch's own), so a GauGAN generator trained then is the same network without those buffers.
+_SPADE_RUNNING_STATS = (".norm.running_mean", ".norm.running_var", ".norm.num_batches_tracked")
+
+
+def _drop_spade_running_stats(name: str, state: dict) -> dict:
+    if name != "SpadeGenerator":
+        return state
+    kept = {k: v for k, v in state.items() if not k.endswith(_SPADE_RUNNING_STATS)}
+    if len(kept) < len(state):
+        log.info("checkpoint: SPADE running statistics dropped (%d buffers): evaluated with batch statistics, "
+                 "as trained", len(state) - len(kept))
+    return kept
+
+
 def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]:
     """The trained generator in eval mode, and info: method, step, model_config, generator_class, friction_scale,
     info (perceptual backbone etc.), path. Raises CheckpointError on anything missing or mismatched."""
@@ -79,7 +97,7 @@ def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]
     try:
         net = classes[name].from_config(ck["model_config"])
         state = {k.removeprefix("module."): v for k, v in ck["generator"].items()}
-        net.load_state_dict(state, strict=True)
+        net.load_state_dict(_drop_spade_running_stats(name, state), strict=True)
     except (RuntimeError, TypeError, KeyError) as exc:
         raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
     net.eval()

@@ -145,3 +145,19 @@ def test_spade_normalises_with_the_inputs_own_statistics_in_eval_as_in_training(
         trained = spade(x, seg)
         evaluated = spade.eval()(x, seg)
     assert torch.allclose(trained, evaluated, atol=1e-6)
+
+
+def test_a_gaugan_checkpoint_with_the_old_running_statistics_loads_as_trained():
+    """Generators trained before the norm fix carry running-statistics buffers that evaluation used and training did
+    not: they load without them (the same network); any other unexpected key still fails."""
+    from trainer.checkpoint import _drop_spade_running_stats
+    from trainer.models.spade_generator import SpadeGenerator
+    g = SpadeGenerator(ngf=2, hidden=4)
+    state = dict(g.state_dict())
+    old = dict(state, **{"head.norm_0.norm.running_mean": torch.zeros(1), "head.norm_0.norm.running_var":
+                         torch.ones(1), "head.norm_0.norm.num_batches_tracked": torch.tensor(7)})
+    SpadeGenerator(ngf=2, hidden=4).load_state_dict(_drop_spade_running_stats("SpadeGenerator", old), strict=True)
+    assert _drop_spade_running_stats("ResnetGenerator", old) is old          # only SPADE's norm is forgiven
+    with pytest.raises(RuntimeError, match="Unexpected"):
+        SpadeGenerator(ngf=2, hidden=4).load_state_dict(
+            _drop_spade_running_stats("SpadeGenerator", dict(state, **{"head.conv_0.extra": torch.zeros(1)})))
