@@ -25,6 +25,7 @@ def test_committed_catalogue_matches_its_recipes_and_loads():
         assert "{data}" in e.data_command and "{data}" in e.train_command and "vtkiosk train" in e.train_command
         assert e.step >= 2500, f"{e.id} is not a full-schedule model (step {e.step})"
         assert "/work/" not in e.train_command and "/tmp/" not in e.data_command
+        assert "--profile" not in e.data_command, f"{e.id}: the catalogue is trained on the default (hard) profile"
 
 
 def _copy(tmp_path) -> Path:
