@@ -28,7 +28,7 @@ import numpy as np
 
 from exporter.bench.bundle_bytes import bundle_layout, bundle_line
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
-from exporter.bench.sources import BenchError, Candidate, build_sources, torch_available
+from exporter.bench.sources import BenchError, Candidate, build_sources, open_measured, torch_available
 from exporter.shared_weights import graph_bytes
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid, unpack
@@ -283,11 +283,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
         env["openvino"] = openvino.__version__
     with tempfile.TemporaryDirectory(prefix="vtkiosk-bench-") as tmp_s:
         tmp = Path(tmp_s)
-        trusted = None
-        if args.trusted_keys is not None:
-            from kiosk.bundle.signature import load_trusted_keys
-            trusted = load_trusted_keys(args.trusted_keys)
-        bundle = open_bundle(args.bundle, trusted, workdir=tmp / "bundle", allow_unsigned=trusted is None)
+        bundle, trusted = open_measured(args.bundle, args.trusted_keys, tmp / "bundle")
         m = bundle.manifest
         graphs = [g for g in args.graphs if g in m.graphs]
         if not graphs:

@@ -52,6 +52,17 @@ class Sources:
     notes: list[str] = field(default_factory=list)
 
 
+def open_measured(path: Path, trusted_keys: Path | None, workdir: Path):
+    """(bundle, trusted keys or None): checked against `trusted_keys` when given; unsigned bundles are allowed
+    otherwise, because a benchmark measures a bundle and never serves it."""
+    from kiosk.bundle.archive import open_bundle
+    trusted = None
+    if trusted_keys is not None:
+        from kiosk.bundle.signature import load_trusted_keys
+        trusted = load_trusted_keys(trusted_keys)
+    return open_bundle(path, trusted, workdir=workdir, allow_unsigned=trusted is None), trusted
+
+
 def torch_available() -> bool:
     return importlib.util.find_spec("torch") is not None
 

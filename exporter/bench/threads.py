@@ -329,7 +329,7 @@ def ratios(rows: list[dict]) -> list[str]:
 
 def run_bench(args, argv: list[str], prog: str) -> dict:
     from exporter.bench.infer import _environment
-    from kiosk.bundle.archive import open_bundle
+    from exporter.bench.sources import open_measured
     from kiosk.inference.backends import available
 
     installed = available()
@@ -353,11 +353,7 @@ def run_bench(args, argv: list[str], prog: str) -> dict:
         else (lambda msg: None)
     with tempfile.TemporaryDirectory(prefix="vtkiosk-threads-") as tmp_s:
         tmp = Path(tmp_s)
-        trusted = None
-        if args.trusted_keys is not None:
-            from kiosk.bundle.signature import load_trusted_keys
-            trusted = load_trusted_keys(args.trusted_keys)
-        bundle = open_bundle(args.bundle, trusted, workdir=tmp / "bundle", allow_unsigned=trusted is None)
+        bundle, _ = open_measured(args.bundle, args.trusted_keys, tmp / "bundle")
         work = planned_work(bundle)
         sweep_rows = [] if args.sweep == "none" else sweep(bundle, work, engines, args, tmp, say)
         lane_rows = lanes(args, args.lanes_engine, splits, tmp, say)
