@@ -1,6 +1,6 @@
 """`--compare`: methods x metrics in the shape of the paper's Tables 1/2, with the reference rows (flat,
 mean-colour, oracle) and the gap closed beside every method, as markdown + JSON; paired bootstrap intervals of
-"ours - X" for every other method and reference; a qualitative sheet per garment (sketch and ground truth, the
+"ours - X" for every other method and reference; the target check (trainer.verdict); a qualitative sheet per garment (sketch and ground truth, the
 reference rows, then each method's visual, normal map, height map and friction map)."""
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trainer import verdict
 from trainer.bootstrap import paired_bootstrap
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
 from trainer.references import REFERENCE_ROWS
@@ -30,9 +31,9 @@ TACTILE_COLUMNS = [("tactile_mse", "T-MSE ↓"), ("tactile_angle_deg", "T-angle�
 # gap-closed columns follow these (tactile, lower is better)
 GAP_AFTER = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle_deg_outside", "full_friction_mae",
              "full_friction_mae_outside")
-DIFF_METRICS = ("visual_psnr", "visual_ssim", "visual_l1", "tactile_mse", "tactile_angle_deg", "full_angle_deg",
-                "full_angle_deg_inside", "full_angle_deg_outside", "full_friction_mae",
-                "full_friction_mae_outside")
+DIFF_METRICS = ("visual_psnr", "visual_ssim", "visual_l1", "visual_fbsifid_unseen", "tactile_mse",
+                "tactile_angle_deg", "full_angle_deg", "full_angle_deg_inside", "full_angle_deg_outside",
+                "full_friction_mae", "full_friction_mae_outside", "full_fbsifid_unseen")
 COLUMNS = VISUAL_COLUMNS + TACTILE_COLUMNS
 HEADERS = dict(COLUMNS)
 
@@ -148,7 +149,8 @@ def ci_table(diffs: dict[str, dict[str, dict]], ours: str) -> str:
     if not metrics:
         return ""
     lines = [f"### {ours} − X, paired bootstrap 95 % interval", "",
-             "Resampled: held-out touches (tactile patches) or 32 px blocks (visual, full field), then garments, "
+             "Resampled: held-out touches (tactile patches), 32 px blocks (visual, full field) or unseen sketches "
+             "(FB-SIFID unseen), then garments, "
              "then each method's seeds. An interval that excludes 0 orders the two; for ↓ metrics a negative "
              f"difference means {ours} is better.", "",
              "| X | " + " | ".join(HEADERS[k] for k in metrics) + " |", "|---|" + "---|" * len(metrics)]
@@ -162,15 +164,21 @@ def ci_table(diffs: dict[str, dict[str, dict]], ours: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed: int = 0) -> dict:
-    """Paired bootstrap of `ours` - X for every other method and every reference row, per DIFF_METRICS."""
+def grouped_units(evals: list[Evaluation]) -> dict[str, dict[str, list]]:
+    """method (or reference row) -> garment -> the per-unit sums of each of its runs (one reference per garment)."""
     runs: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for e in evals:
         runs[e.result["method"]][e.result["garment"]].append(e.units)
-    for e in evals:   # one reference per garment
+    for e in evals:
         for name, u in e.ref_units.items():
             if e.result["garment"] not in runs[name]:
                 runs[name][e.result["garment"]].append(u)
+    return runs
+
+
+def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed: int = 0) -> dict:
+    """Paired bootstrap of `ours` - X for every other method and every reference row, per DIFF_METRICS."""
+    runs = grouped_units(evals)
     if ours not in runs:
         return {}
     out: dict[str, dict] = {}
@@ -237,7 +245,12 @@ def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str =
         ours = methods[0]
     with torch.no_grad():
         diffs = differences(evals, ours, n_boot=n_boot)
-    md, data = table([e.result for e in evals], diffs, ours)
+    results = [e.result for e in evals]
+    md, data = table(results, diffs, ours)
+    competitors = sorted({m for m in methods if m != ours})
+    if competitors:
+        data["target"] = verdict.check(grouped_units(evals), results, ours, competitors, n_boot=n_boot)
+        md += "\n" + verdict.markdown(data["target"])
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which)]

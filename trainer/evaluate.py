@@ -12,6 +12,7 @@ What is scored (docs/training.md, "Evaluation protocol"):
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from dataclasses import dataclass, field
@@ -177,7 +178,9 @@ def score(ctx: Context, nets: Nets, vis: torch.Tensor | None, tac: torch.Tensor 
             units.update(u)
             out["full_fbsifid_seen"] = fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), mask)
     if unseen:
-        out.update(_unseen_texture(ctx, nets, unseen))
+        u_scores, u_units = _unseen_texture(ctx, nets, unseen)
+        out.update(u_scores)
+        units.update(u_units)
     return out, units
 
 
@@ -205,27 +208,40 @@ def _seen_patch_texture(ctx: Context, nets: Nets, tac: torch.Tensor) -> dict:
     return out
 
 
-def _unseen_texture(ctx: Context, nets: Nets, outputs) -> dict:
+def sketch_key(name: str) -> int:
+    """A stable int64 key per unseen sketch, so two methods' per-sketch scores pair up in the bootstrap."""
+    return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=7).digest(), "big")
+
+
+def _unseen_texture(ctx: Context, nets: Nets, outputs) -> tuple[dict, dict[str, Units]]:
     """Mean over unseen sketches of the texture distance between the output (inside the new sketch's mask) and this
-    garment's photo / full-field tactile truth (inside its own mask): does the model keep the fabric on a new shape?"""
-    vis_d, vsifid, tac_d = [], [], []
+    garment's photo / full-field tactile truth (inside its own mask): does the model keep the fabric on a new shape?
+    The FB-SIFID means come with one bootstrap unit per sketch (num = distance, den = 1)."""
+    vals: dict[str, list[tuple[int, float]]] = {"visual_fbsifid_unseen": [], "visual_sifid_unseen": [],
+                                               "full_fbsifid_unseen": []}
     truth = ctx.truth()
     for u, (vis, tac) in zip(ctx.unseen, outputs):
         um = u.mask[0, 0].numpy() > 0.5
+        key = sketch_key(u.name)
         if vis is not None:
-            vis_d.append(fb_sifid_banks(channel_banks(vis[0].numpy()), ctx.banks("visual"), um, ctx.obj))
+            vals["visual_fbsifid_unseen"].append(
+                (key, fb_sifid_banks(channel_banks(vis[0].numpy()), ctx.banks("visual"), um, ctx.obj)))
             if nets.inception is not None:
                 from trainer.models.inception import sifid
-                vsifid.append(sifid(nets.inception, vis, ctx.visual))
+                vals["visual_sifid_unseen"].append((key, sifid(nets.inception, vis, ctx.visual)))
         if tac is not None and truth is not None:
-            tac_d.append(fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), um, ctx.obj))
+            vals["full_fbsifid_unseen"].append(
+                (key, fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), um, ctx.obj)))
     out: dict = {}
-    for key, vals in (("visual_fbsifid_unseen", vis_d), ("visual_sifid_unseen", vsifid),
-                      ("full_fbsifid_unseen", tac_d)):
-        vals = [v for v in vals if np.isfinite(v)]
-        if vals:
-            out[key] = float(np.mean(vals))
-    return out
+    units: dict[str, Units] = {}
+    for name, kv in vals.items():
+        kv = [(k, v) for k, v in kv if np.isfinite(v)]
+        if not kv:
+            continue
+        out[name] = float(np.mean([v for _, v in kv]))
+        if "fbsifid" in name:
+            units[name] = Units([k for k, _ in kv], [v for _, v in kv], np.ones(len(kv)))
+    return out, units
 
 
 def reference_predictions(ctx: Context) -> dict[str, tuple]:

@@ -257,6 +257,12 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert {"tactile_angle_deg", "full_angle_deg_outside"} <= set(data["gap_closed"]["pix2pix"])
     d = data["differences"]["rows"]["pix2pix"]["full_angle_deg"]
     assert d["lo"] <= d["diff"] <= d["hi"] and d["garments"] == 2
+    n_unseen = sum(len(r["unseen_sketches"]) for r in data["runs"] if r["method"] == "ours")
+    u = data["differences"]["rows"]["pix2pix"]["full_fbsifid_unseen"]   # one unit per unseen sketch
+    assert u["garments"] == 2 and u["units"] == n_unseen and u["lo"] <= u["diff"] <= u["hi"]
+    target = data["target"]
+    assert target["competitors"] == ["pix2pix"] and len(target["garments"]) == 2 and target["met"] is False
+    assert "### Target check" in md and "Not met" in md
     for r in data["runs"]:   # the oracle beats every trained run on the full field, garment by garment
         assert all(r["references"]["oracle"][k] <= r[k] for k in FULL)
         assert r["test_patches"] > r["test_touches"] and r["unseen_sketches"][0]["kind"] == "other garment"
