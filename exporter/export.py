@@ -21,7 +21,7 @@ from exporter.accuracy import compare_sessions
 from exporter.bundle_writer import write_bundle
 from exporter.calibration import calibration_set, held_out_set
 from exporter.graphs import export_graph, ort_session, parity
-from exporter.quantize import DEFAULT_FP32_ISLANDS, convert_fp16, quantize_int8
+from exporter.quantize import DEFAULT_FP32_ISLANDS, Calibrated, convert_fp16, quantize_int8
 from exporter.shared_weights import WEIGHTS_FILE, share_weights
 from kiosk.bundle.archive import sha256_file
 from exporter.errors import ExportError
@@ -94,12 +94,15 @@ def rewrites_conv_transpose(precision: str) -> bool:
     return precision == "int8"
 
 
-def lower_precision(fp32: Path, precision: str, dst_dir: Path, calibration, cfg: ExportConfig) -> Path:
-    """The graph at `precision` made from the fp32 graph `fp32` (returned as is for fp32)."""
+def lower_precision(fp32: Path, precision: str, dst_dir: Path, calibration, cfg: ExportConfig,
+                    ranges_from: Calibrated | None = None) -> Path:
+    """The graph at `precision` made from the fp32 graph `fp32` (returned as is for fp32). int8: calibrated
+    ranges are kept in `dst_dir` and taken from `ranges_from` where that graph computes every tensor of this one."""
     stem = Path(fp32).name.split(".")[0]
     if precision == "int8":
         return quantize_int8(fp32, Path(dst_dir) / f"{stem}.int8.onnx", calibration, method=cfg.calibration_method,
-                             fp32_islands=cfg.fp32_islands)
+                             fp32_islands=cfg.fp32_islands, cache=Path(dst_dir) / f"{stem}.ranges.json",
+                             ranges_from=ranges_from)
     if precision == "fp16":
         return convert_fp16(fp32, Path(dst_dir) / f"{stem}.fp16.onnx")
     return Path(fp32)
@@ -212,6 +215,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                  + ", ".join(f"{w}x{h}" for w, h in cfg.sizes)
                  + ("" if branches == 2 else f" ({info.get('generator_class')} has no separate branches: the full "
                     "graph serves every need)"))
+        ranges_from: Calibrated | None = None   # the first int8 graph's ranges serve the others (exporter.ranges)
         for kind in kinds:
             fp32 = export_graph(generator, kind, tmp / f"{kind}.fp32.onnx", size=cfg.sizes[0],
                                 rewrite=rewrites_conv_transpose(cfg.precision))
@@ -220,7 +224,9 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             if parities[kind] > PARITY_BOUND:
                 raise ExportError(f"{kind} graph differs from PyTorch by {parities[kind]:.2e} (> {PARITY_BOUND}); "
                                   "the export is wrong")
-            path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg)
+            path = lower_precision(fp32, cfg.precision, tmp, calibration, cfg, ranges_from)
+            if cfg.precision == "int8" and ranges_from is None:
+                ranges_from = Calibrated.beside(tmp / f"{kind}.ranges.json")
             if cfg.precision != "fp32":
                 err = compare_sessions(ort_session(fp32), ort_session(path), GRAPH_OUTPUTS[kind], held_out, scale,
                                        normalization=cfg.normalization, constants=constants or None)

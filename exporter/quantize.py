@@ -17,8 +17,10 @@ Activation ranges: the 99.999th percentile of calibration activations (measured 
 """
 from __future__ import annotations
 
+import logging
 import tempfile
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import onnx
@@ -27,12 +29,14 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
+from exporter.ranges import transfer
 from exporter.shared_weights import embedded
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import NetworkInput
 
 FP32_ISLANDS = ("pe", "first-conv", "heads", "tactile-branch")
 DEFAULT_FP32_ISLANDS = ("pe", "first-conv", "heads")
+log = logging.getLogger(__name__)
 CALIBRATION_METHODS = {"minmax": CalibrationMethod.MinMax, "percentile": CalibrationMethod.Percentile,
                        "entropy": CalibrationMethod.Entropy}
 
@@ -132,19 +136,40 @@ def fp32_island_nodes(model: onnx.ModelProto, islands: Iterable[str]) -> list[st
     return list(names)
 
 
+@dataclass(frozen=True)
+class Calibrated:
+    """A graph as calibrated (after ORT's pre-processing) and its ranges: what another graph can take ranges from."""
+
+    model: Path
+    cache: Path
+
+    @classmethod
+    def beside(cls, cache: Path) -> "Calibrated":
+        """The record quantize_int8(..., cache=cache) leaves: the pre-processed graph is kept next to the cache."""
+        return cls(Path(cache).with_suffix(".pre.onnx"), Path(cache))
+
+
 def quantize_int8(src: Path, dst: Path, calibration: Sequence[NetworkInput], *, method: str = "percentile",
-                  fp32_islands: Iterable[str] = DEFAULT_FP32_ISLANDS, cache: Path | None = None) -> Path:
+                  fp32_islands: Iterable[str] = DEFAULT_FP32_ISLANDS, cache: Path | None = None,
+                  ranges_from: Calibrated | None = None) -> Path:
     """Static QDQ int8: uint8 activations, int8 per-channel weights, ranges from `calibration` sketches; the
     `fp32_islands` stay float32. `cache` (a JSON file) keeps the calibrated ranges of this graph, method and
-    calibration set, so variants that differ only in their islands calibrate once (the int8 study)."""
+    calibration set, so variants that differ only in their islands calibrate once (the int8 study).
+    `ranges_from`: a graph calibrated on the same sketches with the same method; where it computes every tensor
+    this one does (exporter.ranges), its ranges are used instead of calibrating again (needs `cache`). With
+    `cache`, `Calibrated.beside(cache)` is this graph's record for the next one."""
     if not calibration:
         raise ValueError("int8 quantization needs at least one calibration sketch")
     if method not in CALIBRATION_METHODS:
         raise ValueError(f"calibration method must be one of {', '.join(CALIBRATION_METHODS)}; got {method!r}")
     with tempfile.TemporaryDirectory(prefix="vtkiosk-quant-") as tmp:
-        pre = Path(tmp) / "pre.onnx"
+        pre = Calibrated.beside(cache).model if cache else Path(tmp) / "pre.onnx"
         src = embedded(Path(src), Path(tmp) / "src.onnx")   # a bundle's graph may read a shared weights file
         quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
+        if ranges_from is not None and cache is not None and not Path(cache).exists():
+            if not transfer(onnx.load(str(ranges_from.model)), ranges_from.cache, onnx.load(str(pre)), Path(cache)):
+                log.info("int8: %s computes tensors %s does not; calibrating it on its own", Path(src).name,
+                         ranges_from.model.name)
         exclude = fp32_island_nodes(onnx.load(str(pre)), fp32_islands)
         extra = {"ActivationSymmetric": False, "WeightSymmetric": True}
         if method == "percentile":

@@ -8,7 +8,9 @@ import pytest
 from exporter.calibration import calibration_set
 from exporter.export import ExportConfig, export_run, rewrites_conv_transpose
 from exporter.graphs import export_graph
-from exporter.quantize import fp32_island_nodes, quantize_int8
+from exporter.quantize import Calibrated, fp32_island_nodes, quantize_int8
+from exporter.ranges import structural_keys, transfer
+from kiosk.contract.graph import feeds
 from kiosk.bundle.archive import open_bundle
 
 pytestmark = pytest.mark.slow
@@ -19,7 +21,8 @@ def graphs(run_dir, tmp_path_factory):
     from trainer.checkpoint import load_generator
     gen, _ = load_generator(run_dir)
     tmp = tmp_path_factory.mktemp("quant")
-    return {kind: export_graph(gen, kind, tmp / f"{kind}.onnx", size=(256, 256)) for kind in ("full", "tactile")}
+    return {kind: export_graph(gen, kind, tmp / f"{kind}.onnx", size=(256, 256))
+            for kind in ("full", "tactile", "visual")}
 
 
 def _ops(model, names):
@@ -106,3 +109,69 @@ def test_int8_study_table_and_json(run_dir, tmp_path, capsys):
     assert [r["fp32_islands"] for r in res["rows"]] == ["none", "pe,heads"]
     assert all(np.isfinite(r["friction_mae_levels"]) and r["tactile_mae"] > 0 for r in res["rows"])
     assert set(res["timing_ms"]) == {"fp32", "minmax:", "percentile:pe,heads"}
+
+
+def _box_sketch() -> np.ndarray:
+    sketch = np.full((240, 320), 255, np.uint8)
+    sketch[40:200, 60] = sketch[40:200, 260] = 0
+    sketch[40, 60:261] = sketch[200, 60:261] = 0
+    return sketch
+
+
+def _outputs(path, inputs):
+    import onnxruntime as ort
+    s = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return [s.run(None, feeds(x.sketch, x.mask)) for x in inputs]
+
+
+def test_branch_graphs_take_the_full_graphs_ranges_and_come_out_identical(graphs, tmp_path):
+    """Calibrating once (full graph) and moving ranges by structural key gives the same int8 branch graphs as
+    calibrating each branch on its own: same scales, bit-identical outputs."""
+    cal = calibration_set(_box_sketch(), [(256, 256), (512, 256)], per_size=2)
+    quantize_int8(graphs["full"], tmp_path / "full.int8.onnx", cal, cache=tmp_path / "full.json")
+    full = Calibrated.beside(tmp_path / "full.json")
+    assert full.model.is_file() and full.cache.is_file()
+    held = calibration_set(_box_sketch(), [(256, 256)], per_size=2, seed=7)
+    for kind in ("tactile", "visual"):
+        shared = quantize_int8(graphs[kind], tmp_path / f"{kind}.shared.onnx", cal, cache=tmp_path / f"{kind}.json",
+                               ranges_from=full)
+        alone = quantize_int8(graphs[kind], tmp_path / f"{kind}.alone.onnx", cal)
+        scales = [{i.name: i.raw_data for i in onnx.load(str(p)).graph.initializer if "scale" in i.name}
+                  for p in (shared, alone)]
+        assert scales[0] == scales[1] and scales[0]
+        for a, b in zip(_outputs(shared, held), _outputs(alone, held)):
+            assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_a_graph_computing_something_new_calibrates_itself(graphs, tmp_path):
+    cal = calibration_set(_box_sketch(), [(256, 256)], per_size=2)
+    quantize_int8(graphs["tactile"], tmp_path / "t.onnx", cal, cache=tmp_path / "t.json")
+    tac = Calibrated.beside(tmp_path / "t.json")
+    vis_pre = tmp_path / "v.pre.onnx"
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+    quant_pre_process(str(graphs["visual"]), str(vis_pre), skip_symbolic_shape=True)
+    # the visual decoder is not in the tactile graph: no transfer, nothing written
+    assert not transfer(onnx.load(str(tac.model)), tac.cache, onnx.load(str(vis_pre)), tmp_path / "none.json")
+    assert not (tmp_path / "none.json").exists()
+    out = quantize_int8(graphs["visual"], tmp_path / "v.onnx", cal, cache=tmp_path / "v.json", ranges_from=tac)
+    alone = quantize_int8(graphs["visual"], tmp_path / "v2.onnx", cal)
+    for a, b in zip(_outputs(out, cal[:1]), _outputs(alone, cal[:1])):
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def _tiny(names: tuple[str, str], order: tuple[str, str] = ("Relu", "Sigmoid")) -> onnx.ModelProto:
+    from onnx import TensorProto, helper
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4])
+    y = helper.make_tensor_value_info(names[1], TensorProto.FLOAT, [1, 4])
+    w = helper.make_tensor("w", TensorProto.FLOAT, [1, 4], [1.0, 2.0, 3.0, 4.0])
+    nodes = [helper.make_node("Mul", ["x", "w"], [names[0]], name="a"),
+             helper.make_node(order[0], [names[0]], ["r"], name="b"),
+             helper.make_node(order[1], ["r"], [names[1]], name="c")]
+    return helper.make_model(helper.make_graph(nodes, "g", [x], [y], [w]))
+
+
+def test_structural_keys_follow_the_computation_not_the_names():
+    a, b = structural_keys(_tiny(("m", "y"))), structural_keys(_tiny(("other", "out")))
+    assert a["m"] == b["other"] and a["y"] == b["out"] and a["r"] == b["r"]
+    c = structural_keys(_tiny(("m", "y"), order=("Sigmoid", "Relu")))   # same names, other computation
+    assert c["m"] == a["m"] and c["r"] != a["r"] and c["y"] != a["y"]
