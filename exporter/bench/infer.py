@@ -28,7 +28,7 @@ import numpy as np
 
 from exporter.bench.bundle_bytes import bundle_layout, bundle_line
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
-from exporter.bench.sources import BenchError, Candidate, build_sources, open_measured, torch_available
+from exporter.bench.sources import BenchError, Candidate, build_sources, open_measured, portable, torch_available
 from exporter.shared_weights import graph_bytes
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE, feeds, is_grid, unpack
@@ -463,7 +463,7 @@ def run_bench(args: argparse.Namespace, argv: list[str], prog: str) -> dict:
         "schema": "vtkiosk-bench-infer/2",
         "command": " ".join([prog] + [shlex.quote(a) for a in argv]),
         "created_at": dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
-        "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
+        "bundle": {"file": portable(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
                    "checkpoint_sha256": m.checkpoint_sha256, "precision": default,
                    "bytes": Path(args.bundle).stat().st_size, **layout,
                    "declared_sizes": {k: [_fmt_size(tuple(s)) for s in m.graph(k).sizes] for k in graphs},

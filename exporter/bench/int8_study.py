@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from exporter.bench.sources import portable
 from kiosk.contract.graph import feeds
 
 DEFAULT_VARIANTS = ("minmax:", "minmax:pe", "minmax:pe,heads", "minmax:pe,first-conv,heads",
@@ -115,7 +116,7 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
             print(f"  {k:50s} {v:8.1f} ms  {v / timing['fp32']:.2f}x fp32")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"run": str(args.run), "checkpoint": args.which, "step": info.get("step"),
+        args.json.write_text(json.dumps({"run": portable(args.run), "checkpoint": args.which, "step": info.get("step"),
                                          "graph": args.graph, "rows": rows, "timing_size": args.timing_size,
                                          "timing_ms": timing}, indent=1) + "\n")
     return 0

@@ -52,6 +52,18 @@ class Sources:
     notes: list[str] = field(default_factory=list)
 
 
+def portable(path: Path | str | None) -> str | None:
+    """A path as a JSON that may be committed should hold it: relative to the working directory when inside it,
+    else `<outside>/NAME` (a temporary folder of this machine means nothing on another; the name still says which)."""
+    if path is None:
+        return None
+    p = Path(path).resolve()
+    try:
+        return p.relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return f"<outside>/{p.name}"
+
+
 def open_measured(path: Path, trusted_keys: Path | None, workdir: Path):
     """(bundle, trusted keys or None): checked against `trusted_keys` when given; unsigned bundles are allowed
     otherwise, because a benchmark measures a bundle and never serves it."""

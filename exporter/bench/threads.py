@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from exporter.bench.sources import BenchError
+from exporter.bench.sources import BenchError, portable
 from kiosk.inference.sessions import SessionSettings
 
 ENGINES = ("onnxruntime", "openvino")
@@ -363,7 +363,7 @@ def run_bench(args, argv: list[str], prog: str) -> dict:
         "schema": "vtkiosk-bench-threads/1",
         "command": " ".join([prog] + [shlex.quote(a) for a in argv]),
         "created_at": dt.datetime.now(dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
-        "bundle": {"file": str(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
+        "bundle": {"file": portable(args.bundle), "garment_id": m.garment_id, "model_version": m.model_version,
                    "precision": {k: g.precision for k, g in m.graphs.items()}},
         "work": {k: {"graph": g, "grid": list(grid)} for k, (g, grid, _) in work.items()},
         "settings": {"runs": args.runs, "warmup": args.warmup, "rounds": args.rounds, "seconds": args.seconds,
