@@ -5,17 +5,20 @@ reference rows, then each method's visual, normal map, height map and friction m
 from __future__ import annotations
 
 import json
+import logging
 from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trainer import verdict
+from trainer import eval_cache, verdict
 from trainer.bootstrap import paired_bootstrap
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
+
+log = logging.getLogger(__name__)
 
 VISUAL_COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1", "L1 ↓"),
                   ("visual_lpips", "LPIPS ↓"), ("visual_fbsifid_unseen", "FB-SIFID unseen ↓"),
@@ -232,12 +235,21 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> 
 
 
 def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str = "ours",
-            n_boot: int = 2000) -> tuple[str, dict]:
+            n_boot: int = 2000, cache: bool = True) -> tuple[str, dict]:
+    """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
+    write the tables and sheets to `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        e = evaluate(r, which, swap=False)
+        key = eval_cache.cache_key(r, which) if cache else None
+        e = eval_cache.load(r, which, key) if cache else None
+        if e is None:
+            e = evaluate(r, which, swap=False)
+            if cache:
+                eval_cache.save(r, which, key, e)
+        else:
+            log.info("eval: %s unchanged since it was scored; its stored scores are used", r)
         e.result["run"] = str(r)
         evals.append(e)
     methods = [e.result["method"] for e in evals]

@@ -18,6 +18,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
+    p.add_argument("--rescore", action="store_true",
+                   help="--compare: score every run again instead of reusing the scores stored beside it "
+                        "(RUN/eval/compare-<which>.*; reused only when checkpoint, data and scoring code are unchanged)")
     p.add_argument("--ours", default="ours", metavar="METHOD",
                    help="--compare: the method the 'METHOD - X' intervals are taken for (default ours; the first "
                         "run's method when no run has it)")
@@ -41,7 +44,8 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         print(json.dumps(result, indent=2))
         return 0
     from trainer.compare import compare
-    md, data = compare(args.compare, args.out, args.which, ours=args.ours, n_boot=args.bootstrap)
+    md, data = compare(args.compare, args.out, args.which, ours=args.ours, n_boot=args.bootstrap,
+                       cache=not args.rescore)
     if args.json is not None:
         args.json.write_text(json.dumps(data, indent=2))
     print(md)

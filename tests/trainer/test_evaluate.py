@@ -236,7 +236,7 @@ def test_gap_closed_is_guarded_where_flat_and_oracle_tie():
 
 
 @pytest.mark.slow
-def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_path, capsys):
+def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_path, capsys, monkeypatch):
     runs = []
     for garment_name in ("DenimShorts", "CorduroyTrousers"):
         for method in ("ours", "pix2pix"):
@@ -270,6 +270,22 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert (cmp_dir / "sheet_DenimShorts.png").is_file() and (cmp_dir / "sheet_CorduroyTrousers.png").is_file()
     sheet = cv2.imread(str(cmp_dir / "sheet_DenimShorts.png"))
     assert sheet.shape[0] == 256 * 6   # sketch row, truth, flat + mean-colour, oracle, ours, pix2pix
+    # scores are stored beside each run; a second compare reuses them while nothing changed
+    assert (runs[0] / "eval" / "compare-best.json").is_file() and (runs[0] / "eval" / "compare-best.npz").is_file()
+    import trainer.compare as cmp_mod
+
+    def refuse(*a, **k):
+        raise AssertionError("re-scored a run whose stored scores were current")
+    monkeypatch.setattr(cmp_mod, "evaluate", refuse)
+    assert vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir / "again"), "--bootstrap", "200"]) == 0
+    again = json.loads((cmp_dir / "again" / "compare.json").read_text())
+    assert again["mean"] == data["mean"] and again["differences"] == data["differences"]
+    with pytest.raises(AssertionError, match="re-scored"):   # --rescore, or a changed checkpoint, scores again
+        vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir / "r"), "--bootstrap", "200", "--rescore"])
+    ck = runs[1] / "checkpoints" / "best.pt"
+    ck.write_bytes(ck.read_bytes() + b"\0")
+    with pytest.raises(AssertionError, match="re-scored"):
+        vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir / "c"), "--bootstrap", "200"])
     capsys.readouterr()
     with pytest.raises(SystemExit):
         vtkiosk(["eval", "--compare", str(runs[0]), "--bootstrap", "10"])

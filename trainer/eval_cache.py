@@ -1,0 +1,98 @@
+"""A run's comparison scores kept beside it (`RUN/eval/compare-<which>.json` + `.npz`), so `eval --compare` after
+one more run finishes re-scores only that run (scoring is minutes per run on a CPU: unseen sketches, five reference
+rows).
+
+The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
+size, modification time: the unseen sketches are the other garments) and the scoring code (`trainer/`,
+`kiosk/contract/`). Any change re-scores. Stored as JSON and arrays, never pickled: a run folder may come from
+elsewhere.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from trainer.bootstrap import Units
+from trainer.checkpoint import read_checkpoint
+from trainer.evaluate import Evaluation
+
+log = logging.getLogger(__name__)
+ROOT = Path(__file__).resolve().parents[1]
+CODE = ("trainer", "kiosk/contract")
+VERSION = 1
+
+
+def _code_hash() -> str:
+    h = hashlib.sha256()
+    for entry in CODE:
+        for f in sorted((ROOT / entry).rglob("*.py")):
+            h.update(f.relative_to(ROOT).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def cache_key(run_dir: Path, which: str) -> str:
+    run_dir = Path(run_dir)
+    h = hashlib.sha256(f"v{VERSION} {which}".encode())
+    ck_path = run_dir / "checkpoints" / f"{which}.pt"
+    with open(ck_path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    garment = Path(read_checkpoint(run_dir, which)["config"]["garment"])
+    data = garment.parent
+    for d in sorted(p for p in data.iterdir() if p.is_dir()):
+        for f in sorted(d.rglob("*")):
+            if f.is_file():
+                st = f.stat()
+                h.update(f"{f.relative_to(data).as_posix()} {st.st_size} {st.st_mtime_ns}".encode())
+    h.update(_code_hash().encode())
+    return h.hexdigest()
+
+
+def _paths(run_dir: Path, which: str) -> tuple[Path, Path]:
+    base = Path(run_dir) / "eval" / f"compare-{which}"
+    return base.with_suffix(".json"), base.with_suffix(".npz")
+
+
+def _pack(arrays: dict, prefix: str, units: dict[str, Units]) -> None:
+    for metric, u in units.items():
+        for part in ("key", "num", "den"):
+            arrays[f"{prefix}/{metric}/{part}"] = getattr(u, part)
+
+
+def _unpack(arrays, prefix: str) -> dict[str, Units]:
+    metrics = sorted({k.split("/")[-2] for k in arrays.files if k.startswith(prefix + "/")})
+    return {m: Units(arrays[f"{prefix}/{m}/key"], arrays[f"{prefix}/{m}/num"], arrays[f"{prefix}/{m}/den"])
+            for m in metrics}
+
+
+def save(run_dir: Path, which: str, key: str, e: Evaluation) -> None:
+    meta_path, arr_path = _paths(run_dir, which)
+    meta_path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {}
+    _pack(arrays, "run", e.units)
+    for name, units in e.ref_units.items():
+        _pack(arrays, f"ref:{name}", units)
+    np.savez(arr_path, **arrays)
+    meta_path.write_text(json.dumps({"key": key, "result": e.result, "references": sorted(e.ref_units)}))
+
+
+def load(run_dir: Path, which: str, key: str) -> Evaluation | None:
+    """The stored scores if their key is `key`; None (re-score) when missing, stale or unreadable."""
+    meta_path, arr_path = _paths(run_dir, which)
+    if not (meta_path.is_file() and arr_path.is_file()):
+        return None
+    try:
+        meta = json.loads(meta_path.read_text())
+        if meta.get("key") != key:
+            return None
+        with np.load(arr_path, allow_pickle=False) as arrays:
+            return Evaluation(meta["result"], _unpack(arrays, "run"),
+                              {n: _unpack(arrays, f"ref:{n}") for n in meta["references"]})
+    except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+        log.warning("eval: stored scores of %s unreadable (%s); scoring again", run_dir, exc)
+        return None
