@@ -24,6 +24,7 @@ import yaml
 
 from kiosk.config import loader
 from kiosk.contract.garment import garment_id
+from trainer.data.touchclothing import FOLDER_RE
 
 ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = ROOT / "catalogue"
@@ -182,13 +183,17 @@ def check(folder: Path = CATALOGUE) -> list[Entry]:
 
 
 def regenerate_data(entry: Entry, data_dir: Path) -> Path:
-    """Run the entry's data command into `data_dir`; the garment must come out exactly as recorded."""
+    """Run the entry's data command into `data_dir`; the garment must come out exactly as recorded. A `vtkiosk data
+    synth` command is asked for this garment only (`--only`: the same bytes, a sixth of the work)."""
     garment = Path(data_dir) / entry.garment
     syn = garment / "synthetic.yaml"
     if not syn.is_file():
         cmd = shlex.split(entry.data_command.replace("{data}", shlex.quote(str(data_dir))))
         if cmd[:1] == ["vtkiosk"]:
             cmd = [sys.executable, "-m", "vtkiosk", *cmd[1:]]
+        m = FOLDER_RE.match(entry.garment)
+        if cmd[3:5] == ["data", "synth"] and "--only" not in cmd and m:
+            cmd += ["--only", m["material"]]
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
         if proc.returncode != 0:
             raise CatalogueError(f"{entry.id}: regenerating its data failed: {proc.stderr.strip()[-400:]}")

@@ -162,6 +162,7 @@ CATALOGUE_SIZES = "256,512,768"
 # averages a 2x supersampled friction grid per panel pixel, the hard-profile denim shorts' int8 full graph measures
 # 1.56 levels from fp32; each bundle records its measured figure in its manifest.
 CATALOGUE_MAX_FRICTION_MAE = "2.0"
+EXPORT_SLOTS = 2   # exports side by side: the two cores of the machines this was measured on
 # the exporter modules a catalogue bundle depends on (the model itself is keyed by its file hash and recipe)
 EXPORT_CODE = tuple(c for c in CODE if c != "trainer") + ("trainer/checkpoint.py", "trainer/models",
                                                          "trainer/data/touchclothing.py")
@@ -201,28 +202,42 @@ def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
         build.mkdir(parents=True)
         print(f"demo: exporting {len(todo)} catalogue garment(s) to signed int8 bundles (first start only); "
               f"log in {build / 'build.log'}", flush=True)
-        procs = []
+        running: list[tuple] = []
+
+        def finish(job) -> None:
+            e2, bundle2, out2, proc, lg = job
+            rc = proc.wait()
+            lg.close()
+            if rc != 0:
+                for other in running:
+                    if other is not job:
+                        other[3].kill()
+                tail = (build / f"{e2.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
+                raise DemoError(f"exporting {e2.id} failed (exit {rc}):\n  " + "\n  ".join(tail))
+            bundle2.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(str(out2), bundle2)
+            print(f"demo: {e2.display_name} exported", flush=True)
+
         for i, (e, bundle) in enumerate(todo, 1):
             print(f"demo: [{i}/{len(todo)}] regenerating the data of {e.display_name}", flush=True)
             run = materialise(e, CATALOGUE, build / "data", build / "runs" / e.id)
+            while len(running) >= EXPORT_SLOTS:   # the next export starts as soon as a slot frees
+                done = next((j for j in running if j[3].poll() is not None), None)
+                if done is None:
+                    time.sleep(0.2)
+                    continue
+                finish(done)
+                running.remove(done)
             out = build / f"{e.id}.vtb"
             cmd = [sys.executable, "-m", "vtkiosk", "export", "--run", str(run), "--out", str(out),
                    "--precision", "int8", "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
                    "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
             log = open(build / f"{e.id}.log", "wb")
-            procs.append((e, bundle, out, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT),
-                          log))
-            if len(procs) >= 2 or i == len(todo):       # two exports side by side: the two cores
-                for e2, bundle2, out2, proc, lg in procs:
-                    rc = proc.wait()
-                    lg.close()
-                    if rc != 0:
-                        tail = (build / f"{e2.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
-                        raise DemoError(f"exporting {e2.id} failed (exit {rc}):\n  " + "\n  ".join(tail))
-                    bundle2.parent.mkdir(parents=True, exist_ok=True)
-                    shutil.move(str(out2), bundle2)
-                    print(f"demo: {e2.display_name} exported", flush=True)
-                procs = []
+            running.append((e, bundle, out, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT),
+                            log))
+        for job in list(running):
+            finish(job)
+            running.remove(job)
         keep = {b.parent.name for b in bundles}
         for other in (workdir / "catalogue").iterdir():
             if other.name not in keep:

@@ -71,3 +71,19 @@ def test_bad_input_is_one_line(tmp_path, args, message):
 def test_bad_frame_syntax_is_a_usage_error(tmp_path):
     proc = vtk("data", "synth", "--out", tmp_path, "--frame", "big")
     assert proc.returncode == 2 and "frame must look like 1280x960" in proc.stderr
+
+
+def test_only_writes_the_named_garment_exactly_as_the_whole_set(synth_dir, tmp_path):
+    second = sorted(p.name for p in synth_dir.iterdir() if p.is_dir())[1]
+    material = second.removeprefix("singleskit_").split("_padded_")[0]
+    proc = vtk("data", "synth", "--out", tmp_path, "--garments", 2, "--seed", 3, "--frame", "320x240",
+               "--no-progress", "--only", material)
+    assert proc.returncode == 0, proc.stderr
+    assert [p.name for p in tmp_path.iterdir()] == [second]
+    for f in sorted((synth_dir / second).rglob("*")):
+        if f.is_file():
+            assert (tmp_path / second / f.relative_to(synth_dir / second)).read_bytes() == f.read_bytes(), f
+    bad = vtk("data", "synth", "--out", tmp_path / "x", "--garments", 2, "--seed", 3, "--frame", "320x240",
+              "--no-progress", "--only", "SilkCape")
+    assert bad.returncode != 0 and "no garment SilkCape in this set" in bad.stderr and material in bad.stderr
+    assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())

@@ -27,6 +27,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     synth.add_argument("--profile", choices=("hard", "easy"), default="hard",
                        help="hard (default): sparse touches (1/6 of the frame), prints, folds, lamp, camera model, "
                             "registration jitter; easy: the generator before profiles, bit for bit (docs/data.md)")
+    synth.add_argument("--only", default=None, metavar="NAME[,NAME...]",
+                       help="write only these garments of the set (material names, e.g. DenimShorts), exactly as "
+                            "the whole set would have them: each garment has its own seed")
     synth.add_argument("--sheets", type=Path, default=None, help="also write one contact sheet per garment here")
     synth.add_argument("--no-progress", action="store_true")
     show = sub.add_parser("show", help="write a contact sheet of a garment (or of every garment in a dataset)")
@@ -60,8 +63,9 @@ def main(argv: list[str], prog: str = "vtkiosk data") -> int:
             raise InputError(f"--garments must be at least 1; got {args.garments}")
         t0 = time.perf_counter()
         try:
+            only = None if args.only is None else [n.strip() for n in args.only.split(",") if n.strip()]
             paths = generate_dataset(args.out, garments=args.garments, seed=args.seed, frame=args.frame,
-                                     progress=not args.no_progress, profile=args.profile)
+                                     progress=not args.no_progress, profile=args.profile, only=only)
         except ValueError as exc:
             raise InputError(str(exc)) from exc
         print(f"wrote {len(paths)} garment(s) ({args.profile} profile) to {args.out} in "

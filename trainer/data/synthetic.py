@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 from multiprocessing import get_context
@@ -406,14 +407,23 @@ def _one(args: tuple[Path, GarmentSpec, tuple[int, int], str]) -> Path:
 
 
 def generate_dataset(out_dir: Path, *, garments: int = 6, seed: int = 0, frame: tuple[int, int] = DEFAULT_FRAME,
-                     progress: bool = True, profile: str = DEFAULT_PROFILE) -> list[Path]:
+                     progress: bool = True, profile: str = DEFAULT_PROFILE,
+                     only: Sequence[str] | None = None) -> list[Path]:
     """Generate `garments` garments (default_specs(garments, seed)) under out_dir; returns their folders in order.
+    `only`: just the named ones (spec names such as "DenimShorts"), identical to the whole set's (per-garment seeds).
 
     Uses two worker processes when there is more than one garment; the output does not depend on scheduling.
     """
     frame = _check_frame(frame)
     profile = _check_profile(profile)
     specs = default_specs(garments, seed)
+    if only is not None:
+        names = [s.name for s in specs]
+        unknown = [n for n in only if n not in names]
+        if unknown or not only:
+            raise ValueError(f"--only: no garment {', '.join(unknown) or '(none given)'} in this set; it has "
+                             f"{', '.join(names)}")
+        specs = [s for s in specs if s.name in set(only)]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = [(out_dir, s, frame, profile) for s in specs]
