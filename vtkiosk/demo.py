@@ -209,35 +209,39 @@ def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
             rc = proc.wait()
             lg.close()
             if rc != 0:
-                for other in running:
-                    if other is not job:
-                        other[3].kill()
                 tail = (build / f"{e2.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
                 raise DemoError(f"exporting {e2.id} failed (exit {rc}):\n  " + "\n  ".join(tail))
             bundle2.parent.mkdir(parents=True, exist_ok=True)
             shutil.move(str(out2), bundle2)
             print(f"demo: {e2.display_name} exported", flush=True)
 
-        for i, (e, bundle) in enumerate(todo, 1):
-            print(f"demo: [{i}/{len(todo)}] regenerating the data of {e.display_name}", flush=True)
-            run = materialise(e, CATALOGUE, build / "data", build / "runs" / e.id)
-            while len(running) >= EXPORT_SLOTS:   # the next export starts as soon as a slot frees
-                done = next((j for j in running if j[3].poll() is not None), None)
-                if done is None:
-                    time.sleep(0.2)
-                    continue
-                finish(done)
-                running.remove(done)
-            out = build / f"{e.id}.vtb"
-            cmd = [sys.executable, "-m", "vtkiosk", "export", "--run", str(run), "--out", str(out),
-                   "--precision", "int8", "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
-                   "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
-            log = open(build / f"{e.id}.log", "wb")
-            running.append((e, bundle, out, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT),
-                            log))
-        for job in list(running):
-            finish(job)
-            running.remove(job)
+        try:
+            for i, (e, bundle) in enumerate(todo, 1):
+                print(f"demo: [{i}/{len(todo)}] regenerating the data of {e.display_name}", flush=True)
+                run = materialise(e, CATALOGUE, build / "data", build / "runs" / e.id)
+                while len(running) >= EXPORT_SLOTS:   # the next export starts as soon as a slot frees
+                    done = next((j for j in running if j[3].poll() is not None), None)
+                    if done is None:
+                        time.sleep(0.2)
+                        continue
+                    finish(done)
+                    running.remove(done)
+                out = build / f"{e.id}.vtb"
+                cmd = [sys.executable, "-m", "vtkiosk", "export", "--run", str(run), "--out", str(out),
+                       "--precision", "int8", "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
+                       "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
+                log = open(build / f"{e.id}.log", "wb")
+                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+                running.append((e, bundle, out, proc, log))
+            for job in list(running):
+                finish(job)
+                running.remove(job)
+        except BaseException:   # a failed export or data step, or Ctrl-C: leave no export running behind
+            for job in running:
+                job[3].kill()
+                job[3].wait()
+                job[4].close()
+            raise
         keep = {b.parent.name for b in bundles}
         for other in (workdir / "catalogue").iterdir():
             if other.name not in keep:
