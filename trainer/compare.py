@@ -1,7 +1,8 @@
 """`--compare`: methods x metrics in the shape of the paper's Tables 1/2, with the reference rows (flat,
 mean-colour, oracle) and the gap closed beside every method, as markdown + JSON; paired bootstrap intervals of
-"ours - X" for every other method and reference; the target check (trainer.verdict); a qualitative sheet per garment (sketch and ground truth, the
-reference rows, then each method's visual, normal map, height map and friction map)."""
+"ours - X" for every other method and reference; the target check (trainer.verdict); a qualitative sheet per
+garment (sketch and ground truth, the reference rows, then each method's visual, normal map, height map and friction
+map)."""
 from __future__ import annotations
 
 import json
