@@ -200,7 +200,8 @@ def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed:
     return out
 
 
-def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> list[Path]:
+def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best",
+                       labels: dict[Path, str] | None = None) -> list[Path]:
     per_garment: dict[str, list[Prediction]] = defaultdict(list)
     for r in runs:
         p = Prediction(r, which, unseen=False)
@@ -223,10 +224,12 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> 
         if "oracle" in refs:
             o = refs["oracle"][1][0].numpy()
             rows.append(output_row("oracle", truth_vis, o[0], o[1], m, scale))
-        counts = Counter(p.info["method"] for p in preds)
+        labels = labels or {}
+        names = {id(p): labels.get(p.run, p.info["method"]) for p in preds}
+        counts = Counter(names.values())
         for p in preds:
             # several runs of one method (seeds): name each row by its run folder too
-            name = p.info["method"] if counts[p.info["method"]] == 1 else f"{p.info['method']} ({p.run.name})"
+            name = names[id(p)] if counts[names[id(p)]] == 1 else f"{names[id(p)]} ({p.run.name})"
             rows.append(output_row(name, p.vis[0].permute(1, 2, 0).numpy(), p.tac[0, 0].numpy(),
                                    p.tac[0, 1].numpy(), m, scale))
         path = out_dir / f"sheet_{p0.g.material}.png"
@@ -235,10 +238,26 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best") -> 
     return paths
 
 
+def parse_labelled(args: list[str]) -> tuple[list[Path], dict[Path, str]]:
+    """`RUN` or `LABEL=RUN` arguments -> the runs and the labels given (a LABEL has no path separator)."""
+    runs, labels = [], {}
+    for a in args:
+        label, sep, path = a.partition("=")
+        if sep and label and "/" not in label and path:
+            runs.append(Path(path))
+            labels[Path(path)] = label
+        elif sep and "/" not in label:
+            raise ValueError(f"--compare: {a!r}: a labelled run is LABEL=RUN with both parts")
+        else:
+            runs.append(Path(a))
+    return runs, labels
+
+
 def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str = "ours",
-            n_boot: int = 2000, cache: bool = True) -> tuple[str, dict]:
+            n_boot: int = 2000, cache: bool = True, labels: dict[Path, str] | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
-    write the tables and sheets to `out_dir`."""
+    write the tables and sheets to `out_dir`. `labels`: run -> the name its rows get instead of its method."""
+    labels = labels or {}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
@@ -252,6 +271,8 @@ def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str =
         else:
             log.info("eval: %s unchanged since it was scored; its stored scores are used", r)
         e.result["run"] = str(r)
+        if r in labels:
+            e.result["trained_method"], e.result["method"] = e.result["method"], labels[r]
         evals.append(e)
     methods = [e.result["method"] for e in evals]
     if ours not in methods:   # differences are taken against the first run's method then
@@ -266,5 +287,5 @@ def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str =
         md += "\n" + verdict.markdown(data["target"])
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
-    data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which)]
+    data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which, labels)]
     return md, data

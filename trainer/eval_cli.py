@@ -13,7 +13,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description="Evaluate trained runs; compare methods.")
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--run", type=Path, help="a run folder (from vtkiosk train --out)")
-    mode.add_argument("--compare", type=Path, nargs="+", metavar="RUN", help="several runs: table + sheets")
+    mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN",
+                      help="several runs: table + sheets; LABEL=RUN names a run's row LABEL instead of its method "
+                           "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10)")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
@@ -43,9 +45,13 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         write_eval(args.run, result, args.json)
         print(json.dumps(result, indent=2))
         return 0
-    from trainer.compare import compare
-    md, data = compare(args.compare, args.out, args.which, ours=args.ours, n_boot=args.bootstrap,
-                       cache=not args.rescore)
+    from trainer.compare import compare, parse_labelled
+    try:
+        runs, labels = parse_labelled(args.compare)
+    except ValueError as exc:
+        parser.error(str(exc))
+    md, data = compare(runs, args.out, args.which, ours=args.ours, n_boot=args.bootstrap, cache=not args.rescore,
+                       labels=labels)
     if args.json is not None:
         args.json.write_text(json.dumps(data, indent=2))
     print(md)

@@ -3,6 +3,7 @@ rows (flat, mean-colour, oracle), gap closed, and `vtkiosk eval --compare` end t
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -277,9 +278,14 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     def refuse(*a, **k):
         raise AssertionError("re-scored a run whose stored scores were current")
     monkeypatch.setattr(cmp_mod, "evaluate", refuse)
-    assert vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir / "again"), "--bootstrap", "200"]) == 0
+    assert vtkiosk(["eval", "--compare", *map(str, runs[:3]), f"pix2pix-b={runs[3]}", "--out", str(cmp_dir / "again"),
+                    "--bootstrap", "200"]) == 0   # and a labelled run gets its own rows
     again = json.loads((cmp_dir / "again" / "compare.json").read_text())
-    assert again["mean"] == data["mean"] and again["differences"] == data["differences"]
+    assert again["mean"]["ours"] == data["mean"]["ours"]
+    assert again["differences"]["rows"]["flat"] == data["differences"]["rows"]["flat"]
+    assert again["garments"]["pix2pix-b"] == ["singleskit_CorduroyTrousers_padded_270_x1"]
+    assert "| pix2pix-b |" in (cmp_dir / "again" / "compare.md").read_text()
+    assert [r.get("trained_method") for r in again["runs"]][3] == "pix2pix"
     with pytest.raises(AssertionError, match="re-scored"):   # --rescore, or a changed checkpoint, scores again
         vtkiosk(["eval", "--compare", *map(str, runs), "--out", str(cmp_dir / "r"), "--bootstrap", "200", "--rescore"])
     ck = runs[1] / "checkpoints" / "best.pt"
@@ -290,3 +296,14 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     with pytest.raises(SystemExit):
         vtkiosk(["eval", "--compare", str(runs[0]), "--bootstrap", "10"])
     assert "--bootstrap must be at least 100" in capsys.readouterr().err
+
+
+def test_labelled_runs_parse():
+    from trainer.compare import parse_labelled
+    runs, labels = parse_labelled(["runs/a/ours", "ours-r1-10=runs/b/r1", "x=y=z"])
+    assert runs == [Path("runs/a/ours"), Path("runs/b/r1"), Path("y=z")]
+    assert labels == {Path("runs/b/r1"): "ours-r1-10", Path("y=z"): "x"}
+    assert parse_labelled(["runs/a=b/c"]) == ([Path("runs/a=b/c")], {})   # a path with '=' is a path
+    for bad in ("=runs/a", "label="):
+        with pytest.raises(ValueError, match="LABEL=RUN"):
+            parse_labelled([bad])
