@@ -19,7 +19,7 @@ HELPERS = {Path("kiosk/ops/signals.py"), Path("firmware_bridge/signals.py")}
 SELF_SIGNAL = """
 import signal, threading
 from kiosk.ops.signals import on_signals
-before = signal.getsignal(signal.SIGTERM)
+before, before_hup = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGHUP)
 with on_signals(signal.SIGHUP) as signals:
     assert not signals.stop and signals.stop_signal is None
     signal.pthread_kill(threading.main_thread().ident, signal.SIGHUP)
@@ -28,7 +28,7 @@ with on_signals(signal.SIGHUP) as signals:
     signal.pthread_kill(threading.main_thread().ident, signal.SIGTERM)
     signals.wait(2.0)
     assert signals.stop and signals.stop_signal == signal.SIGTERM
-assert signal.getsignal(signal.SIGTERM) is before and signal.getsignal(signal.SIGHUP) is signal.SIG_DFL
+assert signal.getsignal(signal.SIGTERM) is before and signal.getsignal(signal.SIGHUP) is before_hup
 print("ok")
 """
 
