@@ -86,7 +86,7 @@ class LossConfig:
     # the tactile D wins outright within a few hundred steps and its x5 GAN term drags the tactile branch off the
     # data. `tactile_gan_ramp` is the fraction of the schedule over which the generator's tactile GAN weight rises
     # linearly from 0 to `tactile_gan` (0 = off).
-    tactile_r1: float = 1.0
+    tactile_r1: float = 10.0   # 10 since the hard-profile measurements (docs/training.md, Fidelity II)
     tactile_gan_ramp: float = 0.0
     # DiffAugment on the discriminators' inputs (trainer/recipe/diffaug.py): comma-separated ops from color,
     # translation, cutout (the authors' `--use_diffaug` policy is all three); "" = off.
