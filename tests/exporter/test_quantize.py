@@ -25,6 +25,13 @@ def graphs(run_dir, tmp_path_factory):
             for kind in ("full", "tactile", "visual")}
 
 
+def _box_sketch() -> np.ndarray:
+    sketch = np.full((240, 320), 255, np.uint8)
+    sketch[40:200, 60] = sketch[40:200, 260] = 0
+    sketch[40, 60:261] = sketch[200, 60:261] = 0
+    return sketch
+
+
 def _ops(model, names):
     by = {n.name: n.op_type for n in model.graph.node}
     return collections.Counter(by[n] for n in names)
@@ -47,9 +54,7 @@ def test_islands_from_structure(graphs):
 
 
 def test_int8_keeps_islands_float(graphs, run_dir, tmp_path):
-    sketch = np.full((240, 320), 255, np.uint8)
-    sketch[40:200, 60] = sketch[40:200, 260] = 0
-    sketch[40, 60:261] = sketch[200, 60:261] = 0
+    sketch = _box_sketch()
     cal = calibration_set(sketch, [(256, 256)], per_size=2)
     q = onnx.load(str(quantize_int8(graphs["full"], tmp_path / "q.onnx", cal)))
     producer = {o: n for n in q.graph.node for o in n.output}
@@ -66,9 +71,7 @@ def test_int8_keeps_islands_float(graphs, run_dir, tmp_path):
 
 def test_histogram_calibration_over_several_sizes(graphs, tmp_path):
     """ORT's percentile/entropy calibrators fail on mixed sizes in one batch; fed one size at a time they work."""
-    sketch = np.full((240, 320), 255, np.uint8)
-    sketch[40:200, 60] = sketch[40:200, 260] = 0
-    sketch[40, 60:261] = sketch[200, 60:261] = 0
+    sketch = _box_sketch()
     cal = calibration_set(sketch, [(256, 256), (512, 256)], per_size=2)
     for method in ("percentile", "entropy"):
         out = quantize_int8(graphs["tactile"], tmp_path / f"{method}.onnx", cal, method=method)
@@ -109,13 +112,6 @@ def test_int8_study_table_and_json(run_dir, tmp_path, capsys):
     assert [r["fp32_islands"] for r in res["rows"]] == ["none", "pe,heads"]
     assert all(np.isfinite(r["friction_mae_levels"]) and r["tactile_mae"] > 0 for r in res["rows"])
     assert set(res["timing_ms"]) == {"fp32", "minmax:", "percentile:pe,heads"}
-
-
-def _box_sketch() -> np.ndarray:
-    sketch = np.full((240, 320), 255, np.uint8)
-    sketch[40:200, 60] = sketch[40:200, 260] = 0
-    sketch[40, 60:261] = sketch[200, 60:261] = 0
-    return sketch
 
 
 def _outputs(path, inputs):
