@@ -1,9 +1,9 @@
 """`vtkiosk demo`: the README's main job: the kiosk serving trained garments with the emulated haptic screen.
 
 By default it serves the committed demo catalogue (`catalogue/`, full-schedule models trained by this repository's
-trainer, see vtkiosk/catalogue.py): on first start each garment's data is regenerated, its model exported to a
-signed int8 bundle with a demo key generated here, and the bundles cached (keyed by the model file, its recipe and
-the exporter's source), so later starts take seconds.
+trainer, see vtkiosk/catalogue.py): on first start each garment's data is regenerated and its model exported to a
+signed int8 bundle with a demo key generated here, by two warm worker processes (vtkiosk/export_worker.py), and the
+bundles cached (keyed by the model file, its recipe and the exporter's source), so later starts take seconds.
 
 `--quick` instead builds one demo-quality bundle the way an operator would, with our own commands in child processes:
 `vtkiosk data synth` (one synthetic garment), `vtkiosk train --preset demo` (a short schedule: a demo-quality
@@ -180,13 +180,43 @@ def _export_key(entry) -> str:
     return h.hexdigest()[:16]
 
 
+class _Worker:
+    """A `vtkiosk.export_worker` child: one job at a time, replies read line by line."""
+
+    def __init__(self, log: Path) -> None:
+        self.log = log
+        with open(log, "wb") as err:   # what the worker says outside a job (an import failing, say)
+            self.proc = subprocess.Popen([sys.executable, "-m", "vtkiosk.export_worker"], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, stderr=err, cwd=ROOT, text=True, bufsize=1)
+
+    def send(self, job: dict) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps(job) + "\n")
+        self.proc.stdin.flush()
+
+    def read_reply(self) -> dict | None:
+        """The next reply; None when the worker has gone (it died or was killed)."""
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        return json.loads(line) if line else None
+
+    def close(self, kill: bool = False) -> None:
+        if kill:
+            self.proc.kill()
+        elif self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait()
+
+
 def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
-    """One signed int8 bundle per catalogue garment, exported on first use and cached. Returns the .vtb paths."""
-    from vtkiosk.catalogue import CATALOGUE, load_index, materialise
+    """One signed int8 bundle per catalogue garment, exported on first use and cached. Returns the .vtb paths.
+
+    Exports run in up to EXPORT_SLOTS warm worker processes (vtkiosk/export_worker.py), started before anything
+    else so their imports overlap with the set-up; each takes the next garment as soon as it is free."""
+    from vtkiosk.catalogue import CATALOGUE, load_index
 
     workdir = Path(workdir).resolve()
     entries = load_index(CATALOGUE)
-    signing_key, _ = demo_keys(workdir)
     todo, bundles = [], []
     for e in entries:
         bundle = workdir / "catalogue" / _export_key(e) / f"{e.id}.vtb"
@@ -195,60 +225,88 @@ def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
             todo.append((e, bundle))
         else:
             print(f"demo: reusing {e.display_name} ({bundle.parent.name})")
-    if todo:
-        t0 = time.perf_counter()
-        build = workdir / "build" / "catalogue"
-        shutil.rmtree(build, ignore_errors=True)
-        build.mkdir(parents=True)
+    if not todo:
+        return bundles
+    t0 = time.perf_counter()
+    build = workdir / "build" / "catalogue"
+    shutil.rmtree(build, ignore_errors=True)
+    build.mkdir(parents=True)
+    workers = [_Worker(build / f"worker{i}.log") for i in range(min(EXPORT_SLOTS, len(todo)))]
+    try:
+        signing_key, _ = demo_keys(workdir)
         print(f"demo: exporting {len(todo)} catalogue garment(s) to signed int8 bundles (first start only); "
-              f"log in {build / 'build.log'}", flush=True)
-        running: list[tuple] = []
+              f"logs in {build}", flush=True)
+        jobs = []
+        for i, (e, bundle) in enumerate(todo):
+            out = build / f"{e.id}.vtb"
+            argv = ["--run", str(build / "runs" / e.id), "--out", str(out), "--precision", "int8",
+                    "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
+                    "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
+            jobs.append({"id": i, "entry": e.id, "data_dir": str(build / "data"),
+                         "run_dir": str(build / "runs" / e.id), "argv": argv, "log": str(build / f"{e.id}.log")})
+        pending = list(jobs)
+        busy: dict[int, _Worker] = {}
+        started = 0
 
-        def finish(job) -> None:
-            e2, bundle2, out2, proc, lg = job
-            rc = proc.wait()
-            lg.close()
-            if rc != 0:
-                tail = (build / f"{e2.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
-                raise DemoError(f"exporting {e2.id} failed (exit {rc}):\n  " + "\n  ".join(tail))
-            bundle2.parent.mkdir(parents=True, exist_ok=True)
-            shutil.move(str(out2), bundle2)
-            print(f"demo: {e2.display_name} exported", flush=True)
+        def start_next(w: _Worker) -> None:
+            nonlocal started
+            job = pending.pop(0)
+            started += 1
+            e = todo[job["id"]][0]
+            print(f"demo: [{started}/{len(todo)}] regenerating the data of {e.display_name} and exporting it",
+                  flush=True)
+            w.send(job)
+            busy[job["id"]] = w
 
-        try:
-            for i, (e, bundle) in enumerate(todo, 1):
-                print(f"demo: [{i}/{len(todo)}] regenerating the data of {e.display_name}", flush=True)
-                run = materialise(e, CATALOGUE, build / "data", build / "runs" / e.id)
-                while len(running) >= EXPORT_SLOTS:   # the next export starts as soon as a slot frees
-                    done = next((j for j in running if j[3].poll() is not None), None)
-                    if done is None:
-                        time.sleep(0.2)
-                        continue
-                    finish(done)
-                    running.remove(done)
-                out = build / f"{e.id}.vtb"
-                cmd = [sys.executable, "-m", "vtkiosk", "export", "--run", str(run), "--out", str(out),
-                       "--precision", "int8", "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
-                       "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
-                log = open(build / f"{e.id}.log", "wb")
-                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
-                running.append((e, bundle, out, proc, log))
-            for job in list(running):
-                finish(job)
-                running.remove(job)
-        except BaseException:   # a failed export or data step, or Ctrl-C: leave no export running behind
-            for job in running:
-                job[3].kill()
-                job[3].wait()
-                job[4].close()
-            raise
-        keep = {b.parent.name for b in bundles}
-        for other in (workdir / "catalogue").iterdir():
-            if other.name not in keep:
-                shutil.rmtree(other, ignore_errors=True)
-        shutil.rmtree(build, ignore_errors=True)
-        print(f"demo: catalogue ready in {time.perf_counter() - t0:.0f} s", flush=True)
+        for w in workers:   # each announces its imports are done, then takes its first garment
+            if w.read_reply() is None:
+                tail = w.log.read_text(errors="replace").strip().splitlines()[-5:]
+                raise DemoError("an export worker failed to start:\n  " + "\n  ".join(tail))
+            if pending:
+                start_next(w)
+        while busy:
+            w, reply = _first_reply(list(busy.values()))
+            if reply is None or reply.get("id") not in busy:
+                raise DemoError(f"an export worker stopped unexpectedly (reply {reply!r})")
+            del busy[reply["id"]]
+            e, bundle = todo[reply["id"]]
+            if not reply["ok"]:
+                tail = (build / f"{e.id}.log").read_text(errors="replace").strip().splitlines()[-5:]
+                raise DemoError(f"exporting {e.id} failed ({reply['error']}):\n  " + "\n  ".join(tail))
+            bundle.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(str(build / f"{e.id}.vtb"), bundle)
+            print(f"demo: {e.display_name} exported", flush=True)
+            if pending:
+                start_next(w)
+    except BaseException:   # a failed export or data step, or Ctrl-C: leave no export running behind
+        for w in workers:
+            w.close(kill=True)
+        raise
+    for w in workers:
+        w.close()
+    keep = {b.parent.name for b in bundles}
+    for other in (workdir / "catalogue").iterdir():
+        if other.name not in keep:
+            shutil.rmtree(other, ignore_errors=True)
+    shutil.rmtree(build, ignore_errors=True)
+    print(f"demo: catalogue ready in {time.perf_counter() - t0:.0f} s", flush=True)
     return bundles
+
+
+def _first_reply(workers: list[_Worker]) -> tuple[_Worker, dict | None]:
+    """Block until one of `workers` replies (or exits); that worker and its reply."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+    for w in workers:
+        assert w.proc.stdout is not None
+        sel.register(w.proc.stdout, selectors.EVENT_READ, w)
+    try:
+        key, _ = sel.select()[0]
+    finally:
+        sel.close()
+    w = key.data
+    return w, w.read_reply()
 
 
 def main(argv: list[str], prog: str = "vtkiosk demo") -> int:
