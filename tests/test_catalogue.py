@@ -81,6 +81,12 @@ def test_pack_round_trip_and_refusals(tmp_path):
     b, _ = load_generator(rebuilt, "best")
     for k, v in a.state_dict().items():  # fp16 storage: equal to within half precision
         assert torch.allclose(v, b.state_dict()[k], rtol=1e-3, atol=1e-4), k
+    from vtkiosk.catalogue import drop
+    with pytest.raises(CatalogueError, match=r"no catalogue entry 'nope' \(have: "):
+        drop([e.id, "nope"], tmp_path / "cat")
+    assert [x.id for x in check(tmp_path / "cat")] == [e.id]   # a refused drop removes nothing
+    assert [x.id for x in drop([e.id], tmp_path / "cat")] == [e.id]
+    assert load_index(tmp_path / "cat") == [] and not (tmp_path / "cat" / e.file).exists()
 
 
 @pytest.mark.slow

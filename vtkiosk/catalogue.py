@@ -222,6 +222,21 @@ def materialise(entry: Entry, folder: Path, data_dir: Path, run_dir: Path) -> Pa
     return run_dir
 
 
+def drop(ids: list[str], folder: Path = CATALOGUE) -> list[Entry]:
+    """Remove entries and their model files; every id must be in the index (nothing is removed otherwise)."""
+    folder = Path(folder)
+    entries = load_index(folder)
+    known = {e.id for e in entries}
+    unknown = [i for i in ids if i not in known]
+    if unknown:
+        raise CatalogueError(f"no catalogue entry {', '.join(map(repr, unknown))} (have: {', '.join(sorted(known))})")
+    gone = [e for e in entries if e.id in ids]
+    _write_index(folder, [e for e in entries if e.id not in ids])
+    for e in gone:
+        (folder / e.file).unlink(missing_ok=True)
+    return gone
+
+
 def main(argv: list[str], prog: str = "vtkiosk catalogue") -> int:
     p = argparse.ArgumentParser(prog=prog, description="the demo catalogue: pack trained runs, check the committed one")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -232,6 +247,9 @@ def main(argv: list[str], prog: str = "vtkiosk catalogue") -> int:
     pk.add_argument("--out", type=Path, default=CATALOGUE)
     pk.add_argument("--which", default="latest", choices=("best", "latest"),
                     help="checkpoint to pack (default latest: the full schedule's end, weight average included)")
+    dr = sub.add_parser("drop", help="remove entries (and their model files) from the catalogue")
+    dr.add_argument("ids", nargs="+")
+    dr.add_argument("--folder", type=Path, default=CATALOGUE)
     ck = sub.add_parser("check", help="verify every committed entry: file hash, recipe, weights load")
     ck.add_argument("--folder", type=Path, default=CATALOGUE)
     args = p.parse_args(argv)
@@ -240,6 +258,10 @@ def main(argv: list[str], prog: str = "vtkiosk catalogue") -> int:
             e = pack(run, args.out, args.data_command, which=args.which)
             print(f"catalogue: {e.id} <- {run} (step {e.step}, {(args.out / e.file).stat().st_size / 1e6:.1f} MB, "
                   f"recipe {e.recipe_sha256[:12]})")
+        return 0
+    if args.cmd == "drop":
+        for e in drop(args.ids, args.folder):
+            print(f"catalogue: dropped {e.id} ({e.file})")
         return 0
     for e in check(args.folder):
         print(f"catalogue: {e.id} ok (step {e.step}, recipe {e.recipe_sha256[:12]})")
