@@ -236,15 +236,13 @@ def build_catalogue(workdir: Path, *, rebuild: bool = False) -> list[Path]:
         signing_key, _ = demo_keys(workdir)
         print(f"demo: exporting {len(todo)} catalogue garment(s) to signed int8 bundles (first start only); "
               f"logs in {build}", flush=True)
-        jobs = []
-        for i, (e, bundle) in enumerate(todo):
-            out = build / f"{e.id}.vtb"
-            argv = ["--run", str(build / "runs" / e.id), "--out", str(out), "--precision", "int8",
+        pending = []
+        for i, (e, _bundle) in enumerate(todo):
+            argv = ["--run", str(build / "runs" / e.id), "--out", str(build / f"{e.id}.vtb"), "--precision", "int8",
                     "--sizes", CATALOGUE_SIZES, "--sign-key", str(signing_key),
                     "--max-friction-mae", CATALOGUE_MAX_FRICTION_MAE, "--display-name", e.display_name]
-            jobs.append({"id": i, "entry": e.id, "data_dir": str(build / "data"),
-                         "run_dir": str(build / "runs" / e.id), "argv": argv, "log": str(build / f"{e.id}.log")})
-        pending = list(jobs)
+            pending.append({"id": i, "entry": e.id, "data_dir": str(build / "data"),
+                            "run_dir": str(build / "runs" / e.id), "argv": argv, "log": str(build / f"{e.id}.log")})
         busy: dict[int, _Worker] = {}
         started = 0
 
