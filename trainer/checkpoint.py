@@ -86,17 +86,39 @@ def _drop_spade_running_stats(name: str, state: dict) -> dict:
     return kept
 
 
-def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]:
+WEIGHTS = ("average", "raw")
+
+
+def generator_state(ck: dict, weights: str = "average") -> dict:
+    """G's weights in a checkpoint: `average` = what is validated and exported (the EMA when the run kept one, else
+    the raw weights); `raw` = the optimiser's own weights, kept for resuming, so the EMA can be measured as an
+    ablation without another run."""
+    if weights not in WEIGHTS:
+        raise CheckpointError(f"weights must be one of {', '.join(WEIGHTS)}; got {weights!r}")
+    if weights == "average":
+        return ck["generator"]
+    try:
+        return ck["train_state"]["method"]["generator"]
+    except (KeyError, TypeError):
+        raise CheckpointError("the checkpoint holds no raw weights (no training state: an exported or compacted "
+                              "checkpoint); score its average instead") from None
+
+
+def load_generator(run_dir: Path, which: str = "best", weights: str = "average") -> tuple[nn.Module, dict]:
     """The trained generator in eval mode, and info: method, step, model_config, generator_class, friction_scale,
-    info (perceptual backbone etc.), path. Raises CheckpointError on anything missing or mismatched."""
+    info (perceptual backbone etc.), path, weights. Raises CheckpointError on anything missing or mismatched."""
     ck = read_checkpoint(run_dir, which)
     classes = generator_classes()
     name = ck.get("generator_class", "TwoBranchUNet")
     if name not in classes:
         raise CheckpointError(f"{run_dir}: unknown generator class {name!r}")
     try:
+        state = generator_state(ck, weights)
+    except CheckpointError as exc:
+        raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: {exc}") from None
+    try:
         net = classes[name].from_config(ck["model_config"])
-        state = {k.removeprefix("module."): v for k, v in ck["generator"].items()}
+        state = {k.removeprefix("module."): v for k, v in state.items()}
         net.load_state_dict(_drop_spade_running_stats(name, state), strict=True)
     except (RuntimeError, TypeError, KeyError) as exc:
         raise CheckpointError(f"{run_dir}/checkpoints/{which}.pt: weights do not fit the model ({exc})") from exc
@@ -105,4 +127,5 @@ def load_generator(run_dir: Path, which: str = "best") -> tuple[nn.Module, dict]
     info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
                                    "garment", "crop", "pixel_pitch_mm")}
     info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")
+    info["weights"] = weights
     return net, info

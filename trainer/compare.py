@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import logging
 from collections import Counter, defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import torch
 
 from trainer import eval_cache, verdict
 from trainer.bootstrap import paired_bootstrap
+from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
@@ -200,12 +202,30 @@ def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed:
     return out
 
 
-def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best",
-                       labels: dict[Path, str] | None = None) -> list[Path]:
+@dataclass(frozen=True)
+class RunSpec:
+    """A run folder and which of its G weights are scored: `average` (the EMA, what is exported) or `raw`."""
+
+    path: Path
+    weights: str = "average"
+
+    def __str__(self) -> str:
+        return str(self.path) if self.weights == "average" else f"{self.path}@{self.weights}"
+
+
+def _spec(r: Path | RunSpec) -> RunSpec:
+    return r if isinstance(r, RunSpec) else RunSpec(Path(r))
+
+
+def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "best",
+                       labels: dict[RunSpec, str] | None = None) -> list[Path]:
+    labels = labels or {}
     per_garment: dict[str, list[Prediction]] = defaultdict(list)
-    for r in runs:
-        p = Prediction(r, which, unseen=False)
+    names: dict[int, str] = {}
+    for r in map(_spec, runs):
+        p = Prediction(r.path, which, unseen=False, weights=r.weights)
         per_garment[p.g.name].append(p)
+        names[id(p)] = labels.get(r, _default_label(p.info["method"], r))
     paths = []
     for name, preds in per_garment.items():
         p0 = preds[0]
@@ -224,9 +244,7 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best",
         if "oracle" in refs:
             o = refs["oracle"][1][0].numpy()
             rows.append(output_row("oracle", truth_vis, o[0], o[1], m, scale))
-        labels = labels or {}
-        names = {id(p): labels.get(p.run, p.info["method"]) for p in preds}
-        counts = Counter(names.values())
+        counts = Counter(names[id(p)] for p in preds)
         for p in preds:
             # several runs of one method (seeds): name each row by its run folder too
             name = names[id(p)] if counts[names[id(p)]] == 1 else f"{names[id(p)]} ({p.run.name})"
@@ -238,41 +256,61 @@ def qualitative_sheets(runs: list[Path], out_dir: Path, which: str = "best",
     return paths
 
 
-def parse_labelled(args: list[str]) -> tuple[list[Path], dict[Path, str]]:
-    """`RUN` or `LABEL=RUN` arguments -> the runs and the labels given (a LABEL has no path separator)."""
+def _default_label(method: str, spec: RunSpec) -> str:
+    return method if spec.weights == "average" else f"{method}-{spec.weights}"
+
+
+def parse_run(arg: str) -> RunSpec:
+    """`RUN` or `RUN@raw` (score the run's raw G weights instead of their average)."""
+    path, sep, weights = arg.rpartition("@")
+    if sep and weights in WEIGHTS and path:
+        return RunSpec(Path(path), weights)
+    if sep and "/" not in weights:
+        raise ValueError(f"{arg!r}: RUN@WEIGHTS takes one of {', '.join(WEIGHTS)} after the @")
+    return RunSpec(Path(arg))
+
+
+def parse_labelled(args: list[str]) -> tuple[list[RunSpec], dict[RunSpec, str]]:
+    """`[LABEL=]RUN[@raw]` arguments -> the runs and the labels given (a LABEL has no path separator). A run scored
+    with its raw weights is named `<method>-raw` unless labelled."""
     runs, labels = [], {}
     for a in args:
         label, sep, path = a.partition("=")
         if sep and label and "/" not in label and path:
-            runs.append(Path(path))
-            labels[Path(path)] = label
+            spec = parse_run(path)
+            labels[spec] = label
         elif sep and "/" not in label:
             raise ValueError(f"--compare: {a!r}: a labelled run is LABEL=RUN with both parts")
         else:
-            runs.append(Path(a))
+            spec = parse_run(a)
+        if spec in runs:
+            raise ValueError(f"--compare: {spec} is given twice")
+        runs.append(spec)
     return runs, labels
 
 
-def compare(runs: list[Path], out_dir: Path, which: str = "best", *, ours: str = "ours",
-            n_boot: int = 2000, cache: bool = True, labels: dict[Path, str] | None = None) -> tuple[str, dict]:
+def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, ours: str = "ours",
+            n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
     write the tables and sheets to `out_dir`. `labels`: run -> the name its rows get instead of its method."""
     labels = labels or {}
+    runs = [_spec(r) for r in runs]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        key = eval_cache.cache_key(r, which) if cache else None
-        e = eval_cache.load(r, which, key) if cache else None
+        key = eval_cache.cache_key(r.path, which, r.weights) if cache else None
+        e = eval_cache.load(r.path, which, key, r.weights) if cache else None
         if e is None:
-            e = evaluate(r, which, swap=False)
+            e = evaluate(r.path, which, swap=False, weights=r.weights)
             if cache:
-                eval_cache.save(r, which, key, e)
+                eval_cache.save(r.path, which, key, e, r.weights)
         else:
             log.info("eval: %s unchanged since it was scored; its stored scores are used", r)
         e.result["run"] = str(r)
-        if r in labels:
-            e.result["trained_method"], e.result["method"] = e.result["method"], labels[r]
+        name = labels.get(r, _default_label(e.result["method"], r))
+        if name != e.result["method"]:
+            e.result["trained_method"], e.result["method"] = e.result["method"], name
         evals.append(e)
     methods = [e.result["method"] for e in evals]
     if ours not in methods:   # differences are taken against the first run's method then

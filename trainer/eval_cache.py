@@ -1,4 +1,4 @@
-"""A run's comparison scores kept beside it (`RUN/eval/compare-<which>.json` + `.npz`), so `eval --compare` after
+"""A run's comparison scores kept beside it (`RUN/eval/compare-<which>.json` + `.npz`; `-raw` for its raw weights), so `eval --compare` after
 one more run finishes re-scores only that run (scoring is minutes per run on a CPU: unseen sketches, five reference
 rows).
 
@@ -35,9 +35,11 @@ def _code_hash() -> str:
     return h.hexdigest()
 
 
-def cache_key(run_dir: Path, which: str) -> str:
+def cache_key(run_dir: Path, which: str, weights: str = "average") -> str:
     run_dir = Path(run_dir)
     h = hashlib.sha256(f"v{VERSION} {which}".encode())
+    if weights != "average":   # raw weights are scored apart from the average (stored as compare-<which>-raw)
+        h.update(f" weights={weights}".encode())
     ck_path = run_dir / "checkpoints" / f"{which}.pt"
     with open(ck_path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -53,8 +55,8 @@ def cache_key(run_dir: Path, which: str) -> str:
     return h.hexdigest()
 
 
-def _paths(run_dir: Path, which: str) -> tuple[Path, Path]:
-    base = Path(run_dir) / "eval" / f"compare-{which}"
+def _paths(run_dir: Path, which: str, weights: str = "average") -> tuple[Path, Path]:
+    base = Path(run_dir) / "eval" / (f"compare-{which}" if weights == "average" else f"compare-{which}-{weights}")
     return base.with_suffix(".json"), base.with_suffix(".npz")
 
 
@@ -70,8 +72,8 @@ def _unpack(arrays, prefix: str) -> dict[str, Units]:
             for m in metrics}
 
 
-def save(run_dir: Path, which: str, key: str, e: Evaluation) -> None:
-    meta_path, arr_path = _paths(run_dir, which)
+def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average") -> None:
+    meta_path, arr_path = _paths(run_dir, which, weights)
     meta_path.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, np.ndarray] = {}
     _pack(arrays, "run", e.units)
@@ -81,9 +83,9 @@ def save(run_dir: Path, which: str, key: str, e: Evaluation) -> None:
     meta_path.write_text(json.dumps({"key": key, "result": e.result, "references": sorted(e.ref_units)}))
 
 
-def load(run_dir: Path, which: str, key: str) -> Evaluation | None:
+def load(run_dir: Path, which: str, key: str, weights: str = "average") -> Evaluation | None:
     """The stored scores if their key is `key`; None (re-score) when missing, stale or unreadable."""
-    meta_path, arr_path = _paths(run_dir, which)
+    meta_path, arr_path = _paths(run_dir, which, weights)
     if not (meta_path.is_file() and arr_path.is_file()):
         return None
     try:

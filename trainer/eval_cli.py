@@ -12,10 +12,13 @@ from pathlib import Path
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description="Evaluate trained runs; compare methods.")
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--run", type=Path, help="a run folder (from vtkiosk train --out)")
-    mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN",
+    mode.add_argument("--run", metavar="RUN[@raw]",
+                      help="a run folder (from vtkiosk train --out); RUN@raw scores G's raw weights instead of their "
+                           "moving average (train.ema), the EMA's ablation without another run")
+    mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN[@raw]",
                       help="several runs: table + sheets; LABEL=RUN names a run's row LABEL instead of its method "
-                           "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10)")
+                           "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10); RUN@raw "
+                           "scores the run's raw weights, in rows named <method>-raw")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
@@ -40,9 +43,14 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     import torch
     torch.set_num_threads(min(torch.get_num_threads(), 4))
     if args.run is not None:
+        from trainer.compare import parse_run
         from trainer.evaluate import evaluate_run, write_eval
-        result = evaluate_run(args.run, args.which, swap=not args.no_swap)
-        write_eval(args.run, result, args.json)
+        try:
+            spec = parse_run(args.run)
+        except ValueError as exc:
+            parser.error(str(exc))
+        result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights)
+        write_eval(spec.path, result, args.json)
         print(json.dumps(result, indent=2))
         return 0
     from trainer.compare import compare, parse_labelled

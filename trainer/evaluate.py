@@ -282,9 +282,9 @@ def gap_closed(method: dict, flat: dict, oracle_row: dict) -> dict:
 class Prediction:
     """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
-    def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True):
+    def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average"):
         self.run = Path(run_dir)
-        self.net, self.info = load_generator(self.run, which)
+        self.net, self.info = load_generator(self.run, which, weights)
         ck = read_checkpoint(self.run, which)
         self.cfg = config_from_dict(ck["config"])
         garment_dir = Path(self.cfg.garment)
@@ -317,12 +317,13 @@ class Evaluation:
     ref_units: dict[str, dict[str, Units]]
 
 
-def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True) -> Evaluation:
-    p = Prediction(run_dir, which, unseen=unseen)
+def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True,
+             weights: str = "average") -> Evaluation:
+    p = Prediction(run_dir, which, unseen=unseen, weights=weights)
     ctx = p.ctx
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
-                 "seed": p.seed, "checkpoint": which, "perceptual": (p.info.get("info") or {}).get("perceptual"),
+                 "seed": p.seed, "checkpoint": which, "weights": weights, "perceptual": (p.info.get("info") or {}).get("perceptual"),
                  "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
     metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)
     out.update(metrics)
@@ -342,8 +343,8 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
     return Evaluation(out, units, ref_units)
 
 
-def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True) -> dict:
-    return evaluate(run_dir, which, swap=swap).result
+def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True, weights: str = "average") -> dict:
+    return evaluate(run_dir, which, swap=swap, weights=weights).result
 
 
 def swap_grid(p: Prediction) -> Path | None:
@@ -363,15 +364,17 @@ def swap_grid(p: Prediction) -> Path | None:
 
 
 def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
-    """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json."""
+    """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json; the raw
+    weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's."""
     from trainer.compare import table
     run_dir = Path(run_dir)
+    suffix = "" if result.get("weights", "average") == "average" else f"-{result['weights']}"
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
-    (run_dir / "eval" / "metrics.json").write_text(json.dumps(result, indent=2))
-    (run_dir / "eval" / "summary.md").write_text(table([result])[0])
+    (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
+    (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])
     mpath = run_dir / "metrics.json"
     merged = json.loads(mpath.read_text()) if mpath.is_file() else {}
-    merged["eval"] = result
+    merged["eval" + suffix.replace("-", "_")] = result
     mpath.write_text(json.dumps(merged, indent=2))
     if json_out is not None:
         Path(json_out).parent.mkdir(parents=True, exist_ok=True)

@@ -273,6 +273,13 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert sheet.shape[0] == 256 * 6   # sketch row, truth, flat + mean-colour, oracle, ours, pix2pix
     # scores are stored beside each run; a second compare reuses them while nothing changed
     assert (runs[0] / "eval" / "compare-best.json").is_file() and (runs[0] / "eval" / "compare-best.npz").is_file()
+    # RUN@raw: the raw weights in rows of their own, stored apart (no EMA here, so they score as the average does)
+    assert vtkiosk(["eval", "--compare", str(runs[0]), f"{runs[0]}@raw", "--out", str(cmp_dir / "raw"),
+                    "--bootstrap", "200"]) == 0
+    raw = json.loads((cmp_dir / "raw" / "compare.json").read_text())
+    assert [(r["method"], r["weights"]) for r in raw["runs"]] == [("ours", "average"), ("ours-raw", "raw")]
+    assert raw["runs"][1]["full_angle_deg"] == pytest.approx(raw["runs"][0]["full_angle_deg"])
+    assert (runs[0] / "eval" / "compare-best-raw.json").is_file()
     import trainer.compare as cmp_mod
 
     def refuse(*a, **k):
@@ -299,11 +306,19 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
 
 
 def test_labelled_runs_parse():
-    from trainer.compare import parse_labelled
-    runs, labels = parse_labelled(["runs/a/ours", "ours-r1-10=runs/b/r1", "x=y=z"])
-    assert runs == [Path("runs/a/ours"), Path("runs/b/r1"), Path("y=z")]
-    assert labels == {Path("runs/b/r1"): "ours-r1-10", Path("y=z"): "x"}
-    assert parse_labelled(["runs/a=b/c"]) == ([Path("runs/a=b/c")], {})   # a path with '=' is a path
+    from trainer.compare import RunSpec, parse_labelled
+    runs, labels = parse_labelled(["runs/a/ours", "ours-r1-10=runs/b/r1", "x=y=z", "runs/a/ours@raw", "e=runs/c@raw"])
+    assert runs == [RunSpec(Path("runs/a/ours")), RunSpec(Path("runs/b/r1")), RunSpec(Path("y=z")),
+                    RunSpec(Path("runs/a/ours"), "raw"), RunSpec(Path("runs/c"), "raw")]
+    assert labels == {RunSpec(Path("runs/b/r1")): "ours-r1-10", RunSpec(Path("y=z")): "x",
+                      RunSpec(Path("runs/c"), "raw"): "e"}
+    assert str(runs[3]) == "runs/a/ours@raw" and str(runs[0]) == "runs/a/ours"
+    assert parse_labelled(["runs/a=b/c"]) == ([RunSpec(Path("runs/a=b/c"))], {})   # a path with '=' is a path
+    assert parse_labelled(["runs/me@home/a"]) == ([RunSpec(Path("runs/me@home/a"))], {})   # and one with '@'
     for bad in ("=runs/a", "label="):
         with pytest.raises(ValueError, match="LABEL=RUN"):
             parse_labelled([bad])
+    with pytest.raises(ValueError, match="one of average, raw"):
+        parse_labelled(["runs/a@ema"])
+    with pytest.raises(ValueError, match="given twice"):
+        parse_labelled(["runs/a", "x=runs/a"])

@@ -2,12 +2,14 @@
 resumed run with every piece switched on continuing bit for bit."""
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trainer.checkpoint import load_generator
+from trainer.checkpoint import CheckpointError, load_generator
 from trainer.config import ConfigError, load_config
 from trainer.data.synthetic import generate_dataset
 from trainer.loop import Trainer
@@ -153,3 +155,25 @@ def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth,
     assert all(torch.equal(v, ema[k]) for k, v in net.state_dict().items())
     raw = full.method.generator.state_dict()
     assert any(not torch.equal(v, raw[k]) for k, v in net.state_dict().items())
+    raw_net, info = load_generator(tmp_path / "full", "latest", "raw")   # the EMA's ablation, from the same run
+    assert info["weights"] == "raw"
+    assert all(torch.equal(v, raw[k]) for k, v in raw_net.state_dict().items())
+
+
+def test_raw_weights_need_the_training_state_and_a_known_name(synth, tmp_path):
+    cfg = load_config("tiny", overrides=["train.steps=1", "train.threads=1"])
+    Trainer(cfg, synth, tmp_path / "r").run()
+    ck_path = tmp_path / "r" / "checkpoints" / "best.pt"
+    with pytest.raises(CheckpointError, match="weights must be one of average, raw"):
+        load_generator(tmp_path / "r", "best", "ema")
+    from vtkiosk.cli import main as vtkiosk
+    assert vtkiosk(["eval", "--run", f"{tmp_path / 'r'}@raw", "--no-swap"]) == 0   # scored beside, never over
+    assert json.loads((tmp_path / "r" / "eval" / "metrics-raw.json").read_text())["weights"] == "raw"
+    assert "eval_raw" in json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert not (tmp_path / "r" / "eval" / "metrics.json").exists()
+    ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+    del ck["train_state"]   # a compacted checkpoint (the catalogue's): its average still loads, raw is refused
+    torch.save(ck, ck_path)
+    load_generator(tmp_path / "r", "best")
+    with pytest.raises(CheckpointError, match="no raw weights"):
+        load_generator(tmp_path / "r", "best", "raw")
