@@ -1,6 +1,6 @@
-"""A run's comparison scores kept beside it (`RUN/eval/compare-<which>.json` + `.npz`; `-raw` for its raw weights), so `eval --compare` after
-one more run finishes re-scores only that run (scoring is minutes per run on a CPU: unseen sketches, five reference
-rows).
+"""A run's comparison scores kept beside it (`RUN/eval/compare-<which>.json` + `.npz`; `compare-<which>-raw.*` for
+its raw weights), so `eval --compare` after one more run finishes re-scores only that run (scoring is minutes per
+run on a CPU: unseen sketches, five reference rows).
 
 The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
 size, modification time: the unseen sketches are the other garments) and the scoring code (`trainer/`,
