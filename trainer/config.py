@@ -89,8 +89,9 @@ class LossConfig:
     tactile_r1: float = 10.0   # 10 since the hard-profile measurements (docs/training.md, Fidelity II)
     tactile_gan_ramp: float = 0.0
     # DiffAugment on the discriminators' inputs (trainer/recipe/diffaug.py): comma-separated ops from color,
-    # translation, cutout (the authors' `--use_diffaug` policy is all three); "" = off.
-    diffaug: str = field(default="", metadata={"empty_ok": True})
+    # translation, cutout (the authors' `--use_diffaug` policy is all three; the default since it was measured at the
+    # full schedule: docs/training.md "The recipe's pieces"); "" = off.
+    diffaug: str = field(default="color,translation,cutout", metadata={"empty_ok": True})
     # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
     tactile_texture: float = 0.0
 
