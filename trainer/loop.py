@@ -18,7 +18,7 @@ import torch
 
 from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
-from trainer.config import RunConfig
+from trainer.config import RunConfig, recipe_differences
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
 from trainer.progress import Progress
@@ -83,6 +83,18 @@ class Trainer:
         ck = read_checkpoint(self.out, "latest")
         if ck.get("method") != self.cfg.method:
             raise CheckpointError(f"{self.out}: holds method {ck.get('method')!r}, not {self.cfg.method!r}")
+        if ck.get("garment") not in (None, self.data.g.name):
+            raise CheckpointError(f"{self.out}: was trained on garment {ck['garment']!r}, not {self.data.g.name!r}")
+        # The config comes from the command line, so a default changed since the run began would otherwise change
+        # its recipe half-way without a word.
+        changed, unknown = recipe_differences(ck.get("config", {}), self.cfg.to_dict())
+        if changed:
+            raise CheckpointError(
+                f"{self.out}: the command's config differs from the run's recipe ({'; '.join(changed)}); pass "
+                f"--set key=<the run's value> for each to continue it as it was trained, or start a new --out")
+        if unknown:
+            log.warning("%s: the run predates config keys %s; resuming with their current values", self.out,
+                        ", ".join(unknown))
         ts = ck["train_state"]
         self.method.load_state_dict(ts["method"])
         self.history, self.val_history = ts["history"], ts["val"]

@@ -24,14 +24,12 @@ import yaml
 
 from kiosk.config import loader
 from kiosk.contract.garment import garment_id
+from trainer.config import recipe_view
 from trainer.data.touchclothing import FOLDER_RE
 
 ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = ROOT / "catalogue"
 INDEX = "catalogue.yaml"
-# Run-config keys that say how a run was executed, not what it learned: left out of the recipe hash.
-EXECUTION_KEYS = {("garment",), ("train", "threads"), ("train", "progress"), ("train", "log_every"),
-                  ("train", "sample_every"), ("train", "ckpt_every"), ("train", "deterministic")}
 
 
 class CatalogueError(Exception):
@@ -53,20 +51,10 @@ class Entry:
     metrics: dict
 
 
-def _strip(cfg: dict) -> dict:
-    out = json.loads(json.dumps(cfg))
-    for path in EXECUTION_KEYS:
-        cur = out
-        for k in path[:-1]:
-            cur = cur.get(k, {})
-        cur.pop(path[-1], None)
-    return out
-
-
 def recipe_hash(run_config: dict, synthetic_yaml_sha256: str, data_command: str) -> str:
     """What determines the model: the run config (less execution details), the garment's data and how it is made."""
     h = hashlib.sha256()
-    h.update(json.dumps(_strip(run_config), sort_keys=True).encode())
+    h.update(json.dumps(recipe_view(run_config), sort_keys=True).encode())
     h.update(synthetic_yaml_sha256.encode())
     h.update(data_command.encode())
     return h.hexdigest()

@@ -86,6 +86,39 @@ def test_refuses_to_overwrite_a_run(synth, tmp_path):
         Trainer(load_config("tiny", overrides=["train.steps=1"]), _garment(synth), tmp_path / "r")
 
 
+def test_resume_refuses_a_changed_recipe_and_allows_execution_changes(synth, tmp_path, caplog, capsys):
+    base = ["train.steps=2", "train.ckpt_every=1"]
+    Trainer(load_config("tiny", overrides=base), _garment(synth), tmp_path / "r").run(until=1)
+    # a recipe key that differs (as a default changed between sessions would) is refused, naming key and values
+    for extra, key in ((["loss.diffaug=color"], "loss.diffaug: 'color,translation,cutout' -> 'color'"),
+                       (["optim.lr_policy=constant"], "optim.lr_policy: 'linear' -> 'constant'"),
+                       (["train.steps=3"], "train.steps: 2 -> 3")):
+        with pytest.raises(CheckpointError, match="differs from the run's recipe") as err:
+            Trainer(load_config("tiny", overrides=[*base, *extra]), _garment(synth), tmp_path / "r", resume=True)
+        assert key in str(err.value) and "--set" in str(err.value)
+    with pytest.raises(CheckpointError, match="trained on garment 'singleskit_DenimShorts_padded_270_x1'"):
+        Trainer(load_config("tiny", overrides=base), next(p for p in synth.iterdir() if p != _garment(synth)),
+                tmp_path / "r", resume=True)
+    # how the run is executed may change
+    t = Trainer(load_config("tiny", overrides=[*base, "train.threads=1", "train.log_every=5", "train.progress=false"]),
+                _garment(synth), tmp_path / "r", resume=True)
+    assert t.step == 1
+    # through the command line: a clear error, the run untouched
+    before = (tmp_path / "r" / "checkpoints" / "latest.pt").read_bytes()
+    rc = vtkiosk(["train", "--data", str(synth), "--garment", "DenimShorts", "--preset", "tiny", "--steps", "2",
+                  "--set", "train.ckpt_every=1", "--set", "loss.diffaug=color", "--set", "train.progress=false",
+                  "--out", str(tmp_path / "r"), "--resume"])
+    assert rc != 0 and "loss.diffaug" in capsys.readouterr().err
+    assert (tmp_path / "r" / "checkpoints" / "latest.pt").read_bytes() == before
+    # a run whose checkpoint predates a key resumes, with a warning naming the key
+    ck = torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)
+    del ck["config"]["loss"]["diffaug"]
+    torch.save(ck, tmp_path / "r" / "checkpoints" / "latest.pt")
+    with caplog.at_level("WARNING", logger="trainer"):
+        Trainer(load_config("tiny", overrides=base), _garment(synth), tmp_path / "r", resume=True)
+    assert "predates config keys loss.diffaug" in caplog.text
+
+
 def test_missing_or_corrupt_checkpoint_is_a_clear_error(tmp_path):
     with pytest.raises(CheckpointError, match="no checkpoint"):
         load_generator(tmp_path, "best")
