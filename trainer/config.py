@@ -45,6 +45,7 @@ class ModelConfig:
     base: int = 10
     pe_dim: int = 4
     outer_skip: bool = False
+    tactile_mult: int = 1       # width multiplier of G's tactile head (up3..up0); the paper's is 1
     d_ndf: int = 8
     d_layers: int = 3
     d_scales: int = 3
@@ -236,6 +237,8 @@ def validate(cfg: RunConfig) -> None:
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")
+    if cfg.model.tactile_mult < 1:
+        raise ConfigError(f"model.tactile_mult must be >= 1; got {cfg.model.tactile_mult}")
     if cfg.loss.tactile_r1 < 0:
         raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
     if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:

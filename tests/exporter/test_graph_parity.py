@@ -45,3 +45,10 @@ def test_onnx_graph_matches_the_trained_module(generator, kind, tmp_path):
     path = export_graph(generator, kind, tmp_path / f"{kind}.onnx", size=(256, 256))
     worst = parity(generator, kind, path, [_inputs(1, 256, 256), _inputs(2, 512, 256)])
     assert worst < PARITY_BOUND
+
+
+def test_a_wider_tactile_head_exports_within_the_parity_bound(tmp_path):
+    torch.manual_seed(8)
+    wide = TwoBranchUNet(base=8, tactile_mult=2).eval()
+    path = export_graph(wide, "tactile", tmp_path / "tactile.onnx", size=(256, 256))
+    assert parity(wide, "tactile", path, [_inputs(3, 256, 256)]) < PARITY_BOUND

@@ -34,6 +34,8 @@ def test_overrides_are_typed_and_unknown_keys_fail():
         load_config("cpu", overrides=["data.crop=300"])
     with pytest.raises(ConfigError, match="no preset"):
         load_config("gpu-fast")
+    with pytest.raises(ConfigError, match="model.tactile_mult must be >= 1"):
+        load_config("cpu", overrides=["model.tactile_mult=0"])
 
 
 def test_config_is_frozen_and_overrides_take_the_fields_type():

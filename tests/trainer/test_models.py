@@ -43,6 +43,25 @@ def test_generator_parameter_count_and_shapes():
     assert v.abs().max() <= 1 and t.abs().max() <= 1
 
 
+def test_wider_tactile_head_widens_only_the_tactile_layers_and_round_trips():
+    g = TwoBranchUNet(tactile_mult=2).eval()
+    plain = TwoBranchUNet().eval()
+    count = lambda m: sum(p.numel() for p in m.parameters())   # noqa: E731
+    assert count(g.visual) == count(plain.visual) and count(g.downs) == count(plain.downs)
+    assert count(g.tactile) > 2 * count(plain.tactile)
+    s = torch.rand(1, 1, 256, 256) * 2 - 1
+    v, t = g(s, torch.ones_like(s))
+    assert v.shape == (1, 3, 256, 256) and t.shape == (1, 2, 256, 256)
+    again = TwoBranchUNet.from_config(g.model_config())
+    again.load_state_dict(g.state_dict())
+    assert torch.equal(again(s, torch.ones_like(s), "tactile"), t)
+    # checkpoints written before the option (no tactile_mult in their model_config) rebuild as the paper's head
+    old = {k: v for k, v in plain.model_config().items() if k != "tactile_mult"}
+    TwoBranchUNet.from_config(old).load_state_dict(plain.state_dict())
+    with pytest.raises(ValueError, match="tactile_mult"):
+        TwoBranchUNet(tactile_mult=0)
+
+
 def test_generator_outputs_are_masked_and_input_is_masked():
     torch.manual_seed(0)
     g = TwoBranchUNet().eval()

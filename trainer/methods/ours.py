@@ -40,7 +40,8 @@ class Ours(Method):
     def __init__(self, cfg: RunConfig, *, side: int, dist: Dist | None = None, device: str = "cpu"):
         super().__init__(cfg, side=side, dist=dist, device=device)
         m, o, lc = cfg.model, cfg.optim, cfg.loss
-        self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip).to(self.device)
+        self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip,
+                                       tactile_mult=m.tactile_mult).to(self.device)
         self.G = self._wrap_generator()
         betas = tuple(o.betas)
         self.opts["G"] = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=betas)

@@ -33,6 +33,7 @@ class GeneratorConfig:
     out_tactile: int = 2
     max_mult: int = 8
     outer_skip: bool = False
+    tactile_mult: int = 1   # width multiplier of the tactile head's own layers (up3..up0); 1 = the paper's
 
 
 def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = False) -> nn.Sequential:
@@ -53,16 +54,20 @@ def _up(cin: int, cout: int, *, outermost: bool = False) -> nn.Sequential:
 
 
 class Branch(nn.Module):
-    """up3..up0 of one modality: skips from levels 3..1, no skip into the outermost layer (unless outer_skip)."""
+    """up3..up0 of one modality: skips from levels 3..1, no skip into the outermost layer (unless outer_skip).
 
-    def __init__(self, *, widths: list[int], out: int, outer_skip: bool):
+    `mult` widens the head's own layers (not the skips it takes), so a head can gain capacity without touching the
+    shared encoder and trunk."""
+
+    def __init__(self, *, widths: list[int], out: int, outer_skip: bool, mult: int = 1):
         super().__init__()
         # widths[i] = channels of encoder level i output (down_i), i = 0..7
         self.outer_skip = outer_skip
-        self.up3 = _up(2 * widths[4], widths[2])
-        self.up2 = _up(2 * widths[2], widths[1])
-        self.up1 = _up(2 * widths[1], widths[0])
-        self.up0 = _up((2 if outer_skip else 1) * widths[0], out, outermost=True)
+        own = [c * mult for c in widths[:3]]
+        self.up3 = _up(2 * widths[4], own[2])
+        self.up2 = _up(widths[2] + own[2], own[1])
+        self.up1 = _up(widths[1] + own[1], own[0])
+        self.up0 = _up((widths[0] if outer_skip else 0) + own[0], out, outermost=True)
 
     def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
         y = self.up3(torch.cat([skips[3], trunk], 1))
@@ -82,9 +87,11 @@ class TwoBranchUNet(nn.Module):
     """
 
     def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
-                 max_mult: int = 8, outer_skip: bool = False):
+                 max_mult: int = 8, outer_skip: bool = False, tactile_mult: int = 1):
         super().__init__()
-        self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip)
+        if tactile_mult < 1:
+            raise ValueError(f"tactile_mult must be >= 1; got {tactile_mult}")
+        self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip, tactile_mult)
         self.pe_dim = pe_dim
         w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
         cin = 1 + 2 * pe_dim
@@ -95,7 +102,7 @@ class TwoBranchUNet(nn.Module):
         self.up5 = _up(2 * w[5], w[4])
         self.up4 = _up(2 * w[4], w[3])
         self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip)
-        self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip)
+        self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip, mult=tactile_mult)
 
     @classmethod
     def from_config(cls, cfg: dict | GeneratorConfig) -> "TwoBranchUNet":
