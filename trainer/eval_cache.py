@@ -3,15 +3,19 @@ its raw weights), so `eval --compare` after one more run finishes re-scores only
 run on a CPU: unseen sketches, five reference rows).
 
 The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
-size, modification time: the unseen sketches are the other garments) and the scoring code (`trainer/`,
-`kiosk/contract/`). Any change re-scores. Stored as JSON and arrays, never pickled: a run folder may come from
+size, modification time: the unseen sketches are the other garments) and the scoring code: every module of
+`trainer/` and `kiosk/contract/` that scoring imports, directly or not, found statically (function-level imports
+included), so an edit to the training side (loop, methods, losses) does not re-score every run. Any change to
+those re-scores. Stored as JSON and arrays, never pickled: a run folder may come from
 elsewhere.
 """
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import logging
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -22,16 +26,52 @@ from trainer.evaluate import Evaluation
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1]
-CODE = ("trainer", "kiosk/contract")
+# What computes and stores a run's scores; their imports are followed from here.
+SCORING = ("trainer.evaluate", "trainer.compare", "trainer.eval_cache")
+PACKAGES = ("trainer", "kiosk")
 VERSION = 1
 
 
-def _code_hash() -> str:
+def _module_file(module: str, base: Path) -> Path | None:
+    stem = base / module.replace(".", "/")
+    for f in (stem.with_suffix(".py"), stem / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+def _imports(f: Path) -> set[str]:
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(f.read_text(), str(f))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)   # `from pkg import mod` may name a module, so try both
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+    return {n for n in names if n.split(".")[0] in PACKAGES}
+
+
+def scoring_files(roots: Iterable[str] = SCORING, base: Path = ROOT) -> list[Path]:
+    """The project's source files `roots` import, transitively, with the packages' `__init__`s on the way."""
+    seen: set[Path] = set()
+    todo = list(roots)
+    while todo:
+        module = todo.pop()
+        f = _module_file(module, base)
+        if f is None or f in seen:
+            continue
+        seen.add(f)
+        parts = module.split(".")
+        todo.extend(".".join(parts[:i]) for i in range(1, len(parts)))
+        todo.extend(_imports(f))
+    return sorted(seen)
+
+
+def _code_hash(files: Iterable[Path] | None = None, base: Path = ROOT) -> str:
     h = hashlib.sha256()
-    for entry in CODE:
-        for f in sorted((ROOT / entry).rglob("*.py")):
-            h.update(f.relative_to(ROOT).as_posix().encode())
-            h.update(f.read_bytes())
+    for f in scoring_files() if files is None else sorted(files):
+        h.update(f.relative_to(base).as_posix().encode())
+        h.update(f.read_bytes())
     return h.hexdigest()
 
 
