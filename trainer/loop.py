@@ -18,7 +18,8 @@ import torch
 
 from trainer.physical import dataset_pitch_mm
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
-from trainer.config import RunConfig, recipe_differences
+from trainer.config import RunConfig
+from trainer.recipe.identity import recipe_differences
 from trainer.distributed import Dist, average_scalar
 from trainer.methods import get_method
 from trainer.progress import Progress

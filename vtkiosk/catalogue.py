@@ -24,7 +24,7 @@ import yaml
 
 from kiosk.config import loader
 from kiosk.contract.garment import garment_id
-from trainer.config import recipe_view
+from trainer.recipe.identity import recipe_view
 from trainer.data.touchclothing import FOLDER_RE
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -51,3 +51,15 @@ def test_config_is_frozen_and_overrides_take_the_fields_type():
         load_config("tiny", overrides=["train.deterministic=maybe"])
     with pytest.raises(ConfigError, match="optim.betas must be a list"):
         load_config("tiny", overrides=["optim.betas=0.5"])
+
+
+def test_recipe_differences_ignore_execution_keys_and_report_unknown_ones_apart():
+    from trainer.recipe.identity import recipe_differences
+    old = load_config("cpu").to_dict()
+    new = load_config("cpu", overrides=["train.threads=1", "train.progress=false", "optim.lr=0.002"]).to_dict()
+    new["garment"] = "/elsewhere/DenimShorts"
+    assert recipe_differences(old, new) == (["optim.lr: 0.001 -> 0.002"], [])
+    del old["loss"]["diffaug"]
+    old["model"]["retired"] = 3
+    changed, unknown = recipe_differences(old, new)
+    assert unknown == ["loss.diffaug"] and "model.retired: 3 -> (no such key)" in changed
