@@ -391,7 +391,7 @@ def test_a_pen_draws_while_a_finger_feels(touch, daemon):
 
 def test_idle_returns_to_the_attract_screen_with_the_drawing_and_friction_cleared(browser, tmp_path):
     bundle, trusted = make_bundle(tmp_path)
-    d = start_daemon([bundle], trusted, page={"idle_timeout_s": 3.0, "attract_garment_s": 2.0})
+    d = start_daemon([bundle], trusted, page={"idle_timeout_s": 8.0, "attract_garment_s": 2.0})
     errors: list[str] = []
     try:
         screen = open_page(browser, d, errors)
