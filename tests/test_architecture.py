@@ -24,7 +24,7 @@ ALLOWED: dict[str, set[str]] = {
                     "kiosk.service", "firmware_bridge"},
     "kiosk.bench": {"kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.ops"},
     "firmware_bridge": set(),
-    "trainer": {"kiosk.contract", "kiosk.config", "kiosk.ops.signals"},
+    "trainer": {"kiosk.contract", "kiosk.config", "kiosk.ops.signals", "kiosk.inference.cpu"},
     "exporter": {"trainer", "kiosk.contract", "kiosk.config", "kiosk.bundle", "kiosk.inference", "kiosk.bench"},
     "vtkiosk": {"kiosk", "firmware_bridge", "trainer", "exporter"},
 }

@@ -2,7 +2,8 @@
 
 `RUN/checkpoints/{latest,best}.pt` = {"generator": state_dict, "generator_class": "TwoBranchUNet" |
 "ResnetGenerator" | "Pix2PixHDGenerator" | "SpadeGenerator", "model_config": {...}, "method": name, "step": n, "friction_scale": float, "info": {...
-perceptual backbone / substitutes used ...}, "config": the run config as a dict, "train_state": optimizers,
+perceptual backbone / substitutes used ...}, "config": the run config as a dict, "machines": the CPU and kernel path
+of each stretch it was trained in (trainer.provenance), "train_state": optimizers,
 discriminators, history (for resume only)}. Written atomically (temp file + rename). A missing or unreadable
 checkpoint is an error the operator sees - never silently random weights (the published code's defect).
 """
@@ -125,7 +126,7 @@ def load_generator(run_dir: Path, which: str = "best", weights: str = "average")
     net.eval()
     bake_parametrizations(net)
     info = {k: ck.get(k) for k in ("method", "step", "model_config", "generator_class", "friction_scale", "info",
-                                   "garment", "crop", "pixel_pitch_mm")}
+                                   "garment", "crop", "pixel_pitch_mm", "machines")}
     info["path"] = str(Path(run_dir) / "checkpoints" / f"{which}.pt")
     info["weights"] = weights
     return net, info

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trainer import eval_cache, verdict
+from trainer import eval_cache, provenance, verdict
 from trainer.bootstrap import paired_bootstrap
 from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
@@ -128,6 +128,8 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") ->
                                 by_method, {k: v for k, v in refs.items() if k == "mean-colour"})
     md_t, mt, st, rt = _section("Tactile", tcols, by_method, {k: v for k, v in refs.items() if k != "mean-colour"})
     md = "\n".join(s for s in (md_v, md_t) if s)
+    trained_on = machines(results)
+    md += "\n" + machines_markdown(trained_on)
     if diffs:
         md += "\n" + ci_table(diffs, ours)
     means = {m: mv.get(m, {}) | mt.get(m, {}) for m in by_method}
@@ -143,10 +145,34 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") ->
                            for n, row in ref_means.items()},
             "reference_gap_closed": {n: {k[4:]: v for k, v in row.items() if k.startswith("gap:")}
                                      for n, row in ref_means.items()},
-            "runs": results}
+            "trained_on": trained_on, "runs": results}
     if diffs:
         data["differences"] = {"method": ours, "level": 0.95, "rows": diffs}
     return md, data
+
+
+def machines(results: list[dict]) -> dict:
+    """{machine summary: number of runs trained (partly) on it}, and how many runs mix kernel paths. Rows trained
+    on different kernels differ by more than their intervals say (docs/training.md), so the table names them."""
+    counts: Counter = Counter()
+    mixed = 0
+    for r in results:
+        stretches = r.get("machines") or [{"from_step": 0, "machine": None}]
+        names = {provenance.summary(s.get("machine")) for s in stretches}
+        counts.update(names)
+        mixed += len(stretches) > 1
+    return {"machines": dict(counts.most_common()), "runs_resumed_across_machines": mixed}
+
+
+def machines_markdown(trained_on: dict) -> str:
+    parts = [f"{name}: {n} run{'s' if n != 1 else ''}" for name, n in trained_on["machines"].items()]
+    line = "Trained on " + "; ".join(parts) + "."
+    if trained_on["runs_resumed_across_machines"]:
+        line += f" {trained_on['runs_resumed_across_machines']} run(s) were resumed on another kernel path."
+    if len(trained_on["machines"]) > 1:
+        line += (" Runs from different machines or kernel paths differ by more than the intervals below include "
+                 "(docs/training.md).")
+    return line + "\n"
 
 
 def ci_table(diffs: dict[str, dict[str, dict]], ours: str) -> str:

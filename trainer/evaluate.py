@@ -324,7 +324,7 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
                  "seed": p.seed, "checkpoint": which, "weights": weights,
-                 "perceptual": (p.info.get("info") or {}).get("perceptual"),
+                 "perceptual": (p.info.get("info") or {}).get("perceptual"), "machines": p.info.get("machines"),
                  "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
     metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)
     out.update(metrics)

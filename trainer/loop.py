@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from trainer.physical import dataset_pitch_mm
+from trainer import provenance
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.recipe.identity import recipe_differences
@@ -60,6 +61,7 @@ class Trainer:
         self.val_history: list[dict] = []
         self.best: float | None = None
         self.train_seconds = 0.0
+        self.machines = [{"from_step": 0, "machine": provenance.this_machine(cfg.train.threads)}]
         if resume:
             self._resume()
         elif self.main and (self.out / "checkpoints" / "latest.pt").exists():
@@ -75,7 +77,7 @@ class Trainer:
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
                 "data_profile": self.data.g.profile, "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
-                "crop": self.data.side, "config": self.cfg.to_dict(),
+                "crop": self.data.side, "config": self.cfg.to_dict(), "machines": self.machines,
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
                                 "torch_rng": torch.get_rng_state()}}
@@ -102,6 +104,10 @@ class Trainer:
         self.best, self.train_seconds = ts["best"], ts.get("train_seconds", 0.0)
         torch.set_rng_state(ts["torch_rng"])
         self.step = int(ck["step"])
+        self.machines, changed = provenance.continue_record(ck.get("machines"), self.step,
+                                                            provenance.this_machine(self.cfg.train.threads))
+        if changed:
+            log.warning("%s: %s", self.out, changed)
         log.info("resumed %s at step %d", self.out, self.step)
 
     def save(self, which: str = "latest") -> None:
@@ -200,7 +206,7 @@ class Trainer:
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),
                    "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best,
-                   "stopped_early": self.stopped}
+                   "stopped_early": self.stopped, "machines": self.machines}
         if self.main:
             (self.out / "metrics.json").write_text(json.dumps({"train": summary}, indent=2))
         return summary
