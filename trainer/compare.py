@@ -17,7 +17,7 @@ import torch
 from trainer import eval_cache, provenance, verdict
 from trainer.bootstrap import paired_bootstrap
 from trainer.checkpoint import WEIGHTS
-from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, evaluate, reference_predictions
+from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference_predictions
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 
@@ -152,16 +152,20 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") ->
 
 
 def machines(results: list[dict]) -> dict:
-    """{machine summary: number of runs trained (partly) on it}, and how many runs mix kernel paths. Rows trained
-    on different kernels differ by more than their intervals say (docs/training.md), so the table names them."""
+    """{machine summary: number of runs trained (partly) on it}, how many runs mix kernel paths, and how many were
+    resumed after a stretch whose machine went unrecorded. Rows trained on different kernels differ by more than
+    their intervals say (docs/training.md), so the table names them."""
     counts: Counter = Counter()
-    mixed = 0
+    mixed = partly_unrecorded = 0
     for r in results:
         stretches = r.get("machines") or [{"from_step": 0, "machine": None}]
-        names = {provenance.summary(s.get("machine")) for s in stretches}
-        counts.update(names)
-        mixed += len(stretches) > 1
-    return {"machines": dict(counts.most_common()), "runs_resumed_across_machines": mixed}
+        names = [provenance.summary(s.get("machine")) for s in stretches]
+        counts.update(set(names))
+        recorded = {n for n, s in zip(names, stretches) if s.get("machine")}
+        mixed += len(recorded) > 1
+        partly_unrecorded += bool(recorded) and len(recorded) < len(set(names))
+    return {"machines": dict(counts.most_common()), "runs_resumed_across_machines": mixed,
+            "runs_resumed_after_unrecorded": partly_unrecorded}
 
 
 def machines_markdown(trained_on: dict) -> str:
@@ -169,6 +173,9 @@ def machines_markdown(trained_on: dict) -> str:
     line = "Trained on " + "; ".join(parts) + "."
     if trained_on["runs_resumed_across_machines"]:
         line += f" {trained_on['runs_resumed_across_machines']} run(s) were resumed on another kernel path."
+    if trained_on.get("runs_resumed_after_unrecorded"):
+        line += (f" {trained_on['runs_resumed_after_unrecorded']} run(s) began on an unrecorded machine and were "
+                 "resumed on a recorded one (counted under both).")
     if len(trained_on["machines"]) > 1:
         line += (" Runs from different machines or kernel paths differ by more than the intervals below include "
                  "(docs/training.md).")
@@ -325,14 +332,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        key = eval_cache.cache_key(r.path, which, r.weights) if cache else None
-        e = eval_cache.load(r.path, which, key, r.weights) if cache else None
-        if e is None:
-            e = evaluate(r.path, which, swap=False, weights=r.weights)
-            if cache:
-                eval_cache.save(r.path, which, key, e, r.weights)
-        else:
-            log.info("eval: %s unchanged since it was scored; its stored scores are used", r)
+        e = eval_cache.scored(r.path, which, r.weights, cache=cache)
         e.result["run"] = str(r)
         name = labels.get(r, _default_label(e.result["method"], r))
         if name != e.result["method"]:
@@ -353,3 +353,20 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which, labels)]
     return md, data
+
+
+def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
+    """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json; the raw
+    weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's."""
+    run_dir = Path(run_dir)
+    suffix = "" if result.get("weights", "average") == "average" else f"-{result['weights']}"
+    (run_dir / "eval").mkdir(parents=True, exist_ok=True)
+    (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
+    (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])
+    mpath = run_dir / "metrics.json"
+    merged = json.loads(mpath.read_text()) if mpath.is_file() else {}
+    merged["eval" + suffix.replace("-", "_")] = result
+    mpath.write_text(json.dumps(merged, indent=2))
+    if json_out is not None:
+        Path(json_out).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_out).write_text(json.dumps(result, indent=2))

@@ -5,9 +5,9 @@ run on a CPU: unseen sketches, five reference rows).
 The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
 size, modification time: the unseen sketches are the other garments) and the scoring code: every module of
 `trainer/` and `kiosk/contract/` that scoring imports, directly or not, found statically (function-level imports
-included), so an edit to the training side (loop, methods, losses) does not re-score every run. Any change to
-those re-scores. Stored as JSON and arrays, never pickled: a run folder may come from
-elsewhere.
+included), so an edit to the training side (loop, methods, losses) does not re-score every run, nor does one to the
+tables built from the scores (trainer.compare: wording, intervals, the target's verdict). Any change to the scoring
+code re-scores. Stored as JSON and arrays, never pickled: a run folder may come from elsewhere.
 """
 from __future__ import annotations
 
@@ -22,12 +22,12 @@ import numpy as np
 
 from trainer.bootstrap import Units
 from trainer.checkpoint import read_checkpoint
-from trainer.evaluate import Evaluation
+from trainer.evaluate import Evaluation, evaluate
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1]
 # What computes and stores a run's scores; their imports are followed from here.
-SCORING = ("trainer.evaluate", "trainer.compare", "trainer.eval_cache")
+SCORING = ("trainer.evaluate", "trainer.eval_cache")
 PACKAGES = ("trainer", "kiosk")
 VERSION = 1
 
@@ -138,3 +138,18 @@ def load(run_dir: Path, which: str, key: str, weights: str = "average") -> Evalu
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
         log.warning("eval: stored scores of %s unreadable (%s); scoring again", run_dir, exc)
         return None
+
+
+def scored(run_dir: Path, which: str, weights: str = "average", *, cache: bool = True) -> Evaluation:
+    """The run's scores: stored ones while their key holds, else scored now (and stored unless `cache` is off).
+    Scoring is called from here only, so the tables built from these scores (trainer.compare) can change wording
+    without re-scoring every run."""
+    key = cache_key(run_dir, which, weights) if cache else None
+    e = load(run_dir, which, key, weights) if cache else None
+    if e is not None:
+        log.info("eval: %s unchanged since it was scored; its stored scores are used", run_dir)
+        return e
+    e = evaluate(run_dir, which, swap=False, weights=weights)
+    if cache:
+        save(run_dir, which, key, e, weights)
+    return e

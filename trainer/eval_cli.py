@@ -43,8 +43,8 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     import torch
     torch.set_num_threads(min(torch.get_num_threads(), 4))
     if args.run is not None:
-        from trainer.compare import parse_run
-        from trainer.evaluate import evaluate_run, write_eval
+        from trainer.compare import parse_run, write_eval
+        from trainer.evaluate import evaluate_run
         try:
             spec = parse_run(args.run)
         except ValueError as exc:

@@ -13,7 +13,6 @@ What is scored (docs/training.md, "Evaluation protocol"):
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -362,21 +361,3 @@ def swap_grid(p: Prediction) -> Path | None:
     path = p.run / "eval" / "swap.png"
     save_png(path, grid(rows))
     return path
-
-
-def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
-    """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json; the raw
-    weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's."""
-    from trainer.compare import table
-    run_dir = Path(run_dir)
-    suffix = "" if result.get("weights", "average") == "average" else f"-{result['weights']}"
-    (run_dir / "eval").mkdir(parents=True, exist_ok=True)
-    (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
-    (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])
-    mpath = run_dir / "metrics.json"
-    merged = json.loads(mpath.read_text()) if mpath.is_file() else {}
-    merged["eval" + suffix.replace("-", "_")] = result
-    mpath.write_text(json.dumps(merged, indent=2))
-    if json_out is not None:
-        Path(json_out).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_out).write_text(json.dumps(result, indent=2))

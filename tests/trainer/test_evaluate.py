@@ -280,11 +280,11 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert [(r["method"], r["weights"]) for r in raw["runs"]] == [("ours", "average"), ("ours-raw", "raw")]
     assert raw["runs"][1]["full_angle_deg"] == pytest.approx(raw["runs"][0]["full_angle_deg"])
     assert (runs[0] / "eval" / "compare-best-raw.json").is_file()
-    import trainer.compare as cmp_mod
+    import trainer.eval_cache as cache_mod
 
     def refuse(*a, **k):
         raise AssertionError("re-scored a run whose stored scores were current")
-    monkeypatch.setattr(cmp_mod, "evaluate", refuse)
+    monkeypatch.setattr(cache_mod, "evaluate", refuse)
     assert vtkiosk(["eval", "--compare", *map(str, runs[:3]), f"pix2pix-b={runs[3]}", "--out", str(cmp_dir / "again"),
                     "--bootstrap", "200"]) == 0   # and a labelled run gets its own rows
     again = json.loads((cmp_dir / "again" / "compare.json").read_text())

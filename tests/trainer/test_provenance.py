@@ -107,10 +107,20 @@ def test_the_comparison_names_the_machines_its_rows_were_trained_on():
                {"method": "flat-ish", "garment": "G"}]
     got = machines(results)
     assert got["machines"] == {provenance.summary(HERE): 2, provenance.summary(other): 1, "unrecorded": 1}
-    assert got["runs_resumed_across_machines"] == 1
+    assert got["runs_resumed_across_machines"] == 1 and got["runs_resumed_after_unrecorded"] == 0
     md = machines_markdown(got)
     assert "1 run(s) were resumed on another kernel path" in md and "differ by more than the intervals" in md
     one = machines(results[:1])
     assert "differ" not in machines_markdown(one) and provenance.summary(HERE) in machines_markdown(one)
     md, data = table(results[:1])
     assert provenance.summary(HERE) in md and data["trained_on"] == one
+
+
+def test_a_run_begun_unrecorded_is_not_called_resumed_on_another_kernel_path():
+    results = [{"method": "ours", "garment": "G", "machines": [{"from_step": 0, "machine": None},
+                                                              {"from_step": 141, "machine": HERE}]},
+               {"method": "ours", "garment": "H", "machines": [{"from_step": 0, "machine": HERE}]}]
+    got = machines(results)
+    assert got["runs_resumed_across_machines"] == 0 and got["runs_resumed_after_unrecorded"] == 1
+    md = machines_markdown(got)
+    assert "another kernel path" not in md and "1 run(s) began on an unrecorded machine" in md
