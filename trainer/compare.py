@@ -6,7 +6,6 @@ map)."""
 from __future__ import annotations
 
 import json
-import logging
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +20,6 @@ from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 
-log = logging.getLogger(__name__)
 
 VISUAL_COLUMNS = [("visual_psnr", "PSNR ↑"), ("visual_ssim", "SSIM ↑"), ("visual_l1", "L1 ↓"),
                   ("visual_lpips", "LPIPS ↓"), ("visual_fbsifid_unseen", "FB-SIFID unseen ↓"),
