@@ -161,7 +161,7 @@ def machines(results: list[dict]) -> dict:
         counts.update(set(names))
         recorded = {n for n, s in zip(names, stretches) if s.get("machine")}
         mixed += len(recorded) > 1
-        partly_unrecorded += bool(recorded) and len(recorded) < len(set(names))
+        partly_unrecorded += bool(recorded) and any(not s.get("machine") for s in stretches)
     return {"machines": dict(counts.most_common()), "runs_resumed_across_machines": mixed,
             "runs_resumed_after_unrecorded": partly_unrecorded}
 
