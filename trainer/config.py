@@ -4,6 +4,7 @@ the project's one loader (`kiosk.config.loader`), validated, printed and saved a
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from trainer.recipe.diffaug import parse_policy
 from trainer.recipe.schedule import POLICIES
 
 PRESETS_DIR = Path(__file__).parent / "presets"
+DEVICE_RE = re.compile(r"cpu|auto|cuda(:[0-9]+)?")
 
 class ConfigError(TrainerError):
     """A preset or override that does not fit the typed config; the message names the key."""
@@ -120,6 +122,9 @@ class TrainConfig:
     progress: bool = True
     # Decay of the exponential moving average of G's weights used for validation, evaluation and export; 0 = off.
     ema: float = 0.0
+    # Where the step runs: "cpu", "cuda", "cuda:N", or "auto" (the first GPU when torch sees one, else the CPU).
+    # How a run is executed, not what it learns: a resume may change it and the recipe hash leaves it out.
+    device: str = "cpu"
 
 
 @dataclass(frozen=True)
@@ -196,6 +201,8 @@ def validate(cfg: RunConfig) -> None:
     for k in ("log_every", "val_every", "sample_every", "ckpt_every", "threads"):
         if getattr(cfg.train, k) < 1:
             raise ConfigError(f"train.{k} must be >= 1")
+    if not DEVICE_RE.fullmatch(cfg.train.device):
+        raise ConfigError(f"train.device must be cpu, cuda, cuda:N or auto; got {cfg.train.device!r}")
     if cfg.model.tactile_mult < 1:
         raise ConfigError(f"model.tactile_mult must be >= 1; got {cfg.model.tactile_mult}")
     if cfg.loss.tactile_r1 < 0:

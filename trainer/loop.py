@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +23,7 @@ from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from trainer.config import RunConfig
 from trainer.recipe.identity import recipe_differences
 from trainer.distributed import Dist, average_scalar
+from trainer.errors import TrainerError
 from trainer.methods import get_method
 from trainer.progress import Progress
 from trainer.recipe.schedule import apply_lr, lr_factor
@@ -32,12 +34,33 @@ from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_ui
 log = logging.getLogger("trainer")
 
 
-def set_determinism(cfg: RunConfig) -> None:
+def resolve_device(name: str, dist: Dist | None = None) -> torch.device:
+    """`train.device` as a torch device. Under torchrun each rank takes its own GPU (its local rank)."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise TrainerError(f"train.device is {name!r} but this torch sees no GPU "
+                               f"(torch {torch.__version__}); use cpu or auto")
+        if dist is not None and name == "cuda":
+            name = f"cuda:{dist.local_rank}"
+        elif name == "cuda":
+            name = "cuda:0"
+    return torch.device(name)
+
+
+def set_determinism(cfg: RunConfig, device: torch.device) -> None:
     torch.set_num_threads(cfg.train.threads)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
     if cfg.train.deterministic:
-        torch.use_deterministic_algorithms(True)
+        if device.type == "cuda":
+            # cuBLAS is deterministic only with a fixed workspace, which must be set before it starts; some CUDA
+            # kernels (e.g. transposed-conv backward) have no deterministic form, so they warn rather than stop.
+            os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+            torch.use_deterministic_algorithms(True, warn_only=True)
+        else:
+            torch.use_deterministic_algorithms(True)
 
 
 class Trainer:
@@ -51,17 +74,18 @@ class Trainer:
         self.dist = dist
         self.rank = dist.rank if dist else 0
         self.main = self.rank == 0
-        set_determinism(cfg)
+        self.device = resolve_device(cfg.train.device, dist)
+        set_determinism(cfg, self.device)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
-        self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist)
+        self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
         self.method.attach_ema(cfg.train.ema)
-        self.val = self.data.eval_set("val")
+        self.val = self.data.eval_set("val").to(self.device)
         self.step = 0
         self.history: list[dict] = []
         self.val_history: list[dict] = []
         self.best: float | None = None
         self.train_seconds = 0.0
-        self.machines = [{"from_step": 0, "machine": provenance.this_machine(cfg.train.threads)}]
+        self.machines = [{"from_step": 0, "machine": provenance.this_machine(cfg.train.threads, self.device)}]
         if resume:
             self._resume()
         elif self.main and (self.out / "checkpoints" / "latest.pt").exists():
@@ -73,7 +97,8 @@ class Trainer:
     # --- state ----------------------------------------------------------------------------------------------
     def _payload(self) -> dict:
         m = self.method
-        return {"generator": m.eval_generator.state_dict(), "generator_class": m.generator_class,
+        weights = {k: v.detach().cpu() for k, v in m.eval_generator.state_dict().items()}  # loads on any machine
+        return {"generator": weights, "generator_class": m.generator_class,
                 "model_config": m.generator.model_config(), "method": m.name, "step": self.step,
                 "friction_scale": self.data.friction_scale, "info": m.info, "garment": self.data.g.name,
                 "data_profile": self.data.g.profile, "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0],
@@ -104,8 +129,8 @@ class Trainer:
         self.best, self.train_seconds = ts["best"], ts.get("train_seconds", 0.0)
         torch.set_rng_state(ts["torch_rng"])
         self.step = int(ck["step"])
-        self.machines, changed = provenance.continue_record(ck.get("machines"), self.step,
-                                                            provenance.this_machine(self.cfg.train.threads))
+        here = provenance.this_machine(self.cfg.train.threads, self.device)
+        self.machines, changed = provenance.continue_record(ck.get("machines"), self.step, here)
         if changed:
             log.warning("%s: %s", self.out, changed)
         log.info("resumed %s at step %d", self.out, self.step)
@@ -136,9 +161,10 @@ class Trainer:
     def sample_sheet(self, path: Path) -> None:
         v = self.val
         vis, tac = self.predict(v)
+        vis, tac, sketch, real = (t.cpu() for t in (vis, tac, v.sketch, v.visual))
         gx, gy = tac[0, 0].numpy(), tac[0, 1].numpy()
-        tiles = [label(to_uint8(v.sketch[0, 0].numpy()), "sketch"),
-                 label(to_uint8(v.visual[0].permute(1, 2, 0).numpy()), "real visual"),
+        tiles = [label(to_uint8(sketch[0, 0].numpy()), "sketch"),
+                 label(to_uint8(real[0].permute(1, 2, 0).numpy()), "real visual"),
                  label(to_uint8(vis[0].permute(1, 2, 0).numpy()), f"step {self.step}: visual"),
                  label(normal_tile(gx, gy), "normal map"),
                  label(friction_tile(gx, gy, self.data.friction_scale), "friction map")]
@@ -170,7 +196,7 @@ class Trainer:
                 self.save("latest")
                 log.info("stopped at step %d on request; --resume continues from there", self.step)
                 break
-            batch = self.data.batch(self.step, self.rank)
+            batch = self.data.batch(self.step, self.rank).to(self.device)
             o = self.cfg.optim
             factor = lr_factor(o.lr_policy, self.step, t.steps, o.decay_from)
             apply_lr(self.method.opts, factor)

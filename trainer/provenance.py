@@ -12,13 +12,18 @@ import torch
 from kiosk.inference.cpu import describe
 
 # what decides the arithmetic: the same values here mean the same kernels (and so the same run, given the seed)
-KERNEL_KEYS = ("cpu_model", "isa", "torch", "torch_cpu_capability", "threads")
+KERNEL_KEYS = ("cpu_model", "isa", "torch", "torch_cpu_capability", "threads", "gpu")
 
 
-def this_machine(threads: int) -> dict:
+def this_machine(threads: int, device: torch.device | None = None) -> dict:
+    """The record of this machine; `gpu` (name, compute capability) only when the step runs on one."""
     cpu = describe()
-    return {"cpu_model": cpu["model"], "arch": cpu["arch"], "isa": cpu["isa"], "torch": torch.__version__,
-            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(), "threads": int(threads)}
+    out = {"cpu_model": cpu["model"], "arch": cpu["arch"], "isa": cpu["isa"], "torch": torch.__version__,
+           "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(), "threads": int(threads)}
+    if device is not None and device.type == "cuda":
+        major, minor = torch.cuda.get_device_capability(device)
+        out["gpu"] = f"{torch.cuda.get_device_name(device)} (sm_{major}{minor}, CUDA {torch.version.cuda})"
+    return out
 
 
 def same_kernels(a: dict | None, b: dict | None) -> bool:
@@ -53,5 +58,6 @@ def summary(m: dict | None) -> str:
         return "unrecorded"
     isa = "+".join(m.get("isa") or []) or "no SIMD flags"
     t = m.get("threads")
+    gpu = f" on {m['gpu']}" if m.get("gpu") else ""
     return (f"{m.get('cpu_model', '?')} ({isa}; torch {m.get('torch', '?')} {m.get('torch_cpu_capability', '?')}, "
-            f"{t} thread{'s' if t != 1 else ''})")
+            f"{t} thread{'s' if t != 1 else ''}){gpu}")

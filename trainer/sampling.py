@@ -8,7 +8,7 @@ reference weights them; `unpaired` fake-patch origins drawn uniformly inside the
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -35,6 +35,13 @@ class Batch:
     origins: np.ndarray
     unpaired: np.ndarray
     origin: tuple[int, int]
+
+    def to(self, device: torch.device) -> "Batch":
+        """The same batch with its tensors on `device` (data is drawn on the CPU, seeded, whatever trains it)."""
+        if self.sketch.device == torch.device(device):
+            return self
+        moved = {k: getattr(self, k) for k in ("sketch", "mask", "visual", "gx", "gy", "contact")}
+        return replace(self, **{k: (v.to(device) if v is not None else None) for k, v in moved.items()})
 
 
 def crop_tensors(g: Garment, origin: tuple[int, int], side: int, *, sketch=None, mask=None, visual=None):

@@ -28,7 +28,7 @@ def parse_policy(policy: str) -> tuple[str, ...]:
 def _color(x: torch.Tensor, rgb: slice, g: torch.Generator) -> torch.Tensor:
     n = x.shape[0]
     c = x[:, rgb]
-    r = lambda: torch.rand(n, 1, 1, 1, generator=g, dtype=x.dtype, device=x.device)  # noqa: E731
+    r = lambda: torch.rand(n, 1, 1, 1, generator=g, dtype=x.dtype).to(x.device)  # noqa: E731
     c = c + (r() - 0.5)                                          # brightness
     mean_ch = c.mean(dim=1, keepdim=True)
     c = (c - mean_ch) * (r() * 2) + mean_ch                      # saturation
@@ -40,8 +40,8 @@ def _color(x: torch.Tensor, rgb: slice, g: torch.Generator) -> torch.Tensor:
 def _translation(x: torch.Tensor, g: torch.Generator, ratio: float = 0.125) -> torch.Tensor:
     n, _, h, w = x.shape
     sh, sw = max(1, int(h * ratio + 0.5)), max(1, int(w * ratio + 0.5))
-    ty = torch.randint(-sh, sh + 1, (n,), generator=g, device=x.device)
-    tx = torch.randint(-sw, sw + 1, (n,), generator=g, device=x.device)
+    ty = torch.randint(-sh, sh + 1, (n,), generator=g).to(x.device)
+    tx = torch.randint(-sw, sw + 1, (n,), generator=g).to(x.device)
     padded = F.pad(x, (sw, sw, sh, sh))
     rows = (torch.arange(h, device=x.device)[None, :] - ty[:, None] + sh).clamp(0, h + 2 * sh - 1)
     cols = (torch.arange(w, device=x.device)[None, :] - tx[:, None] + sw).clamp(0, w + 2 * sw - 1)
@@ -53,8 +53,8 @@ def _translation(x: torch.Tensor, g: torch.Generator, ratio: float = 0.125) -> t
 def _cutout(x: torch.Tensor, g: torch.Generator, ratio: float = 0.5) -> torch.Tensor:
     n, _, h, w = x.shape
     ch, cw = max(1, int(h * ratio + 0.5)), max(1, int(w * ratio + 0.5))
-    cy = torch.randint(0, h + (1 - ch % 2), (n,), generator=g, device=x.device)
-    cx = torch.randint(0, w + (1 - cw % 2), (n,), generator=g, device=x.device)
+    cy = torch.randint(0, h + (1 - ch % 2), (n,), generator=g).to(x.device)
+    cx = torch.randint(0, w + (1 - cw % 2), (n,), generator=g).to(x.device)
     ys = torch.arange(h, device=x.device)[None, :, None]
     xs = torch.arange(w, device=x.device)[None, None, :]
     inside = ((ys - cy[:, None, None]).abs() <= ch // 2) & ((xs - cx[:, None, None]).abs() <= cw // 2)
@@ -69,6 +69,7 @@ class DiffAugment:
     def __init__(self, policy: str, *, rgb: slice | None, seed: int = 0):
         self.ops = parse_policy(policy)
         self.rgb = rgb
+        # a CPU stream whatever the device: the draws, and so a run, do not depend on where the step runs
         self.g = torch.Generator().manual_seed(seed)
 
     @property

@@ -10,7 +10,8 @@ import json
 # Run-config keys that say how a run is executed, not what it learns: a resume may change them, and the catalogue's
 # recipe hash leaves them out. Everything else (train.steps too: it sets the learning-rate decay) is the recipe.
 EXECUTION_KEYS = frozenset({("garment",), ("train", "threads"), ("train", "progress"), ("train", "log_every"),
-                            ("train", "sample_every"), ("train", "ckpt_every"), ("train", "deterministic")})
+                            ("train", "sample_every"), ("train", "ckpt_every"), ("train", "deterministic"),
+                            ("train", "device")})
 
 
 def recipe_view(cfg: dict) -> dict:

@@ -1,0 +1,124 @@
+#!/bin/bash
+# The close methods' comparison trained on one GPU, inside a fixed time budget: `ours`, `no-tactile-gan` and
+# `ours-no-gan` (the full table's recipes) on the hard garments at a larger crop, all runs side by side on the one
+# GPU, each at the longest schedule the budget allows (measured first, then fixed for every run, so the rows share
+# one recipe), scored with `vtkiosk eval --compare`, and packed into $OUT for a machine that keeps no state.
+#
+#   OUT=/tmp/gpu scripts/gpu_table.sh [BUDGET_S]      # data: data/hard640 (vtkiosk data synth ... --frame 640x480)
+#
+# Environment: DATA, GARMENTS, CROP (768: the largest grid multiple a 900 px padded frame holds), DEVICE (cuda),
+# PY (python3), WORK (/tmp/gpu_table), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
+# MAX_STEPS (20000). Every stage has its own deadline inside BUDGET_S (default 540), so the packing always runs.
+set -u
+START=$(date +%s)
+BUDGET=${1:-540}
+: "${OUT:?set OUT to the folder that collects the results}"
+PY=${PY:-python3}
+DATA=${DATA:-data/hard640}
+GARMENTS=${GARMENTS:-DenimShorts CorduroyTrousers KnitJacket SatinShirt}
+CROP=${CROP:-768}
+DEVICE=${DEVICE:-cuda}
+W=${WORK:-/tmp/gpu_table}
+MIN_STEPS=${MIN_STEPS:-2500}
+MAX_STEPS=${MAX_STEPS:-20000}
+export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+# stage deadlines, seconds from START
+TRAIN_END=$((BUDGET * 64 / 100)); EVAL_END=$((BUDGET * 84 / 100)); TABLE_END=$((BUDGET * 94 / 100))
+mkdir -p "$OUT" "$W"
+el() { echo $(( $(date +%s) - START )); }
+left() { local r=$(( $1 - $(el) )); [ $r -lt 1 ] && r=1; echo $r; }
+log() { echo "[$(el) s] $*" | tee -a "$OUT/gpu_table.log"; }
+
+COMMON="--data $DATA --preset cpu --set data.crop=$CROP --set train.threads=1 --set train.progress=false \
+--set train.device=$DEVICE --set train.ema=0.999"
+recipe() {   # the full table's recipe of each method (docs/training.md)
+  case $1 in
+    ours|no-tactile-gan) echo "--method $1 --set loss.tactile_r1=10 --set loss.diffaug=color,translation,cutout" ;;
+    ours-no-gan) echo "--method ours-no-gan --set optim.lr_policy=linear --set loss.diffaug=" ;;
+  esac
+}
+train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method) side by side
+  local root=$1 steps=$2 deadline=$3; shift 3
+  for g in $GARMENTS; do for m in $METHODS; do
+    mkdir -p "$root/$g"
+    timeout -s TERM "$(left "$deadline")" $PY -m vtkiosk train $COMMON $(recipe "$m") --garment "$g" \
+      --steps "$steps" "$@" --out "$root/$g/$m" > "$root/$g/$m.log" 2>&1 &
+  done; done
+  wait
+}
+
+{ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
+  $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.is_available())"
+  lscpu | grep -m1 "Model name"; nproc; } > "$OUT/machine.txt" 2>&1
+log "machine: $(tr '\n' ' ' < "$OUT/machine.txt")"
+
+# 1. the step time of all runs side by side (80 steps, the first ones' warm-up included: an overestimate; the CLIP
+#    discriminator on from the start, so its step is in the time and its code has run here before the real runs)
+METHODS="ours no-tactile-gan ours-no-gan"
+train_all "$W/cal" 80 $((BUDGET * 15 / 100)) --set train.val_every=1000 --set train.sample_every=1000 \
+  --set train.ckpt_every=1000 --set loss.clip_start=0
+OK=""
+for m in $METHODS; do
+  if ls "$W"/cal/*/"$m"/metrics.json > /dev/null 2>&1; then OK="$OK $m"; else
+    log "calibration of $m failed; dropped. Its log:"; tail -n 25 "$(ls "$W"/cal/*/"$m".log | head -n 1)" >> "$OUT/gpu_table.log"
+  fi
+done
+METHODS=${OK# }
+SPS=$($PY - "$W/cal" <<'EOF'
+import json, sys, pathlib
+v = [json.loads(p.read_text())["train"]["seconds_per_step"] for p in pathlib.Path(sys.argv[1]).glob("*/*/metrics.json")]
+print(max(v) if v else "")
+EOF
+)
+if [ -z "$SPS" ] || [ -z "$METHODS" ]; then
+  log "calibration failed; its logs:"; tail -n 30 "$W"/cal/*/*.log >> "$OUT/gpu_table.log"
+  tar -C "$W" -czf "$OUT/calibration_logs.tar.gz" cal; exit 1
+fi
+N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
+STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/$SPS)//250*250; print(max(250, min(s, $MAX_STEPS)))")
+if [ "$STEPS" -lt "$MIN_STEPS" ] && [ "$METHODS" = "ours no-tactile-gan ours-no-gan" ]; then
+  METHODS="ours ours-no-gan"; N=$((N * 2 / 3))   # two methods: each run gets 3/2 of its share of the GPU
+  STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/($SPS*2/3))//250*250; print(max(250, min(s, $MAX_STEPS)))")
+fi
+log "calibration: ${SPS} s/step with all runs side by side; training $N runs ($METHODS) for $STEPS steps"
+
+# 2. the runs (a run still going at the deadline gets SIGTERM, saves its latest checkpoint, and is marked so)
+train_all "$W/runs" "$STEPS" "$TRAIN_END"
+for g in $GARMENTS; do for m in $METHODS; do
+  log "$g/$m: $($PY -c "import json; t=json.load(open('$W/runs/$g/$m/metrics.json'))['train']; \
+print(t['step'], 'steps', t['seconds_per_step'], 's/step', 'stopped early' if t['stopped_early'] else '')" 2>&1 | tail -n 1)"
+done; done
+
+# 3. scores: each run scored in its own process (cached beside the run), then one table from the caches
+for g in $GARMENTS; do for m in $METHODS; do
+  timeout "$(left "$EVAL_END")" $PY -m vtkiosk eval --compare "$W/runs/$g/$m" --which latest --no-swap \
+    --out "$W/score/$g-$m" > "$W/runs/$g/$m.eval.log" 2>&1 &
+done; done
+wait
+ARGS=(); for m in $METHODS; do for g in $GARMENTS; do ARGS+=("$W/runs/$g/$m"); done; done
+timeout "$(left "$TABLE_END")" $PY -m vtkiosk eval --compare "${ARGS[@]}" --which latest --ours ours --no-swap \
+  --out "$W/table" > "$W/table.log" 2>&1
+log "table: exit $? ($(ls "$W/table" 2>/dev/null | tr '\n' ' '))"
+
+# 4. the generator's inference time at the paper's 1536 px, beside the paper's 0.19 s
+timeout 25 $PY scripts/gpu_infer_time.py --run "$W/runs/DenimShorts/ours" --out "$OUT/gpu_infer.json" --repeats 20 \
+  >> "$OUT/gpu_table.log" 2>&1
+
+# 5. pack: the table, each run's record and scores, and its generator in fp16 (to score again elsewhere)
+$PY - "$W" "$DATA" <<'EOF'
+import pathlib, sys, torch
+w, data = pathlib.Path(sys.argv[1]), sys.argv[2]
+for ck_path in w.glob("runs/*/*/checkpoints/latest.pt"):
+    ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+    ck.pop("train_state", None)
+    ck["generator"] = {k: v.half() if v.is_floating_point() else v for k, v in ck["generator"].items()}
+    ck["config"]["garment"] = f"{data}/{pathlib.Path(ck['config']['garment']).name}"  # no machine's own path
+    out = ck_path.parent.parent / "weights"
+    out.mkdir(exist_ok=True)
+    torch.save(ck, out / "latest.pt")
+EOF
+tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples table runs
+for m in $METHODS; do
+  tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
+done
+log "packed: $(ls -s "$OUT" | tr '\n' ' ')"

@@ -1,0 +1,101 @@
+"""`train.device`: where a step runs is an execution setting, checked up front, and the data a step sees does not
+depend on it (drawn on the CPU, seeded, then moved)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings, strategies as st
+
+from trainer import provenance
+from trainer.config import ConfigError, load_config
+from trainer.distributed import Dist
+from trainer.errors import TrainerError
+from trainer.loop import resolve_device
+from trainer.recipe.diffaug import DiffAugment
+from trainer.recipe.identity import recipe_differences
+from trainer.sampling import Batch
+
+
+@pytest.mark.parametrize("value", ["cpu", "cuda", "cuda:0", "cuda:3", "auto"])
+def test_device_values_accepted(value):
+    assert load_config("tiny", overrides=[f"train.device={value}"]).train.device == value
+
+
+@given(st.text(max_size=12).filter(lambda s: s not in ("cpu", "cuda", "auto") and not
+                                   (s.startswith("cuda:") and s[5:].isdigit() and s[5:].isascii())))
+@settings(max_examples=60, deadline=None)
+def test_any_other_device_is_a_clear_config_error(value):
+    with pytest.raises(ConfigError, match="train.device must be cpu, cuda, cuda:N or auto"):
+        load_config("tiny", overrides=[f"train.device={value!r}"])
+
+
+def test_device_is_how_a_run_executes_not_its_recipe():
+    old = load_config("cpu").to_dict()
+    new = load_config("cpu", overrides=["train.device=cuda"]).to_dict()
+    assert recipe_differences(old, new) == ([], [])
+    del old["train"]["device"]   # a run saved before the key existed resumes on a GPU without a recipe change
+    assert recipe_differences(old, new) == ([], [])
+
+
+def test_auto_falls_back_to_the_cpu_and_cuda_without_a_gpu_says_so(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == torch.device("cpu")
+    assert resolve_device("cpu") == torch.device("cpu")
+    for name in ("cuda", "cuda:1"):
+        with pytest.raises(TrainerError, match="sees no GPU"):
+            resolve_device(name)
+
+
+def test_each_torchrun_rank_takes_its_own_gpu(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("cuda") == torch.device("cuda:0")
+    assert resolve_device("auto", Dist(rank=5, world=8, local_rank=1)) == torch.device("cuda:1")
+    assert resolve_device("cuda:2", Dist(rank=0, world=2, local_rank=0)) == torch.device("cuda:2")
+
+
+def _batch() -> Batch:
+    t = lambda *s: torch.rand(*s)  # noqa: E731
+    return Batch(t(1, 1, 256, 256), t(1, 1, 256, 256), t(1, 3, 256, 256), t(4, 1, 32, 32), t(4, 1, 32, 32),
+                 t(4, 1, 32, 32), np.zeros((4, 2), int), np.zeros((2, 2), int), (10, 20))
+
+
+def test_a_batch_moves_its_tensors_and_keeps_its_places():
+    b = _batch()
+    assert b.to(torch.device("cpu")) is b                  # already there: no copy
+    m = b.to(torch.device("meta"))                         # a device every torch build has
+    for k in ("sketch", "mask", "visual", "gx", "gy", "contact"):
+        assert getattr(m, k).device.type == "meta" and getattr(m, k).shape == getattr(b, k).shape
+    assert m.origin == b.origin and m.origins is b.origins and m.unpaired is b.unpaired
+    assert b.sketch.device.type == "cpu"                   # the original is untouched
+
+
+def test_diffaugment_draws_from_a_cpu_stream_whatever_the_device(monkeypatch):
+    """The transform a step gets is fixed by the seed alone: the same draws on any device. The meta device stands
+    in for a GPU, with CUDA's rule imposed (a generator may only draw on its own device), which the meta device
+    itself does not enforce."""
+    import trainer.recipe.diffaug as da
+
+    def guarded(fn):
+        def draw(*args, generator=None, device=None, **kw):
+            if generator is not None and torch.device(device or "cpu") != generator.device:
+                raise RuntimeError(f"Expected a '{torch.device(device).type}' device type for generator")
+            return fn(*args, generator=generator, device=device, **kw)
+        return draw
+    monkeypatch.setattr(da.torch, "rand", guarded(torch.rand))
+    monkeypatch.setattr(da.torch, "randint", guarded(torch.randint))
+    x = torch.rand(3, 4, 64, 64)
+    a = DiffAugment("color,translation,cutout", rgb=slice(1, 4), seed=7)
+    b = DiffAugment("color,translation,cutout", rgb=slice(1, 4), seed=7)
+    (out,) = a(x)
+    (meta,) = b(x.to("meta"))
+    assert meta.device.type == "meta" and meta.shape == out.shape
+    assert a.g.get_state().equal(b.g.get_state())          # both streams advanced by exactly the same draws
+
+
+def test_the_machine_record_names_a_gpu_only_when_one_trains():
+    cpu = provenance.this_machine(1, torch.device("cpu"))
+    assert "gpu" not in cpu and provenance.this_machine(1) == cpu
+    gpu = cpu | {"gpu": "NVIDIA H200 (sm_90, CUDA 13.0)"}
+    assert provenance.summary(gpu).endswith(" on NVIDIA H200 (sm_90, CUDA 13.0)")
+    assert not provenance.same_kernels(cpu, gpu)           # a resume that moves to a GPU starts a new stretch
