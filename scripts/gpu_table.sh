@@ -117,7 +117,8 @@ for ck_path in w.glob("runs/*/*/checkpoints/latest.pt"):
     out.mkdir(exist_ok=True)
     torch.save(ck, out / "latest.pt")
 EOF
-tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples table runs
+tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples --exclude='sheet_*' table runs
+tar -C "$W" -cf "$OUT/sheets.tar" $(cd "$W" && ls table/sheet_* 2>/dev/null)
 for m in $METHODS; do
   tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
 done
