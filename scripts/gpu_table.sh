@@ -8,7 +8,9 @@
 #
 # Environment: DATA, GARMENTS, CROP (768: the largest grid multiple a 900 px padded frame holds), DEVICE (cuda),
 # PY (python3), WORK (/tmp/gpu_table), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
-# MAX_STEPS (20000). Every stage has its own deadline inside BUDGET_S (default 540), so the packing always runs.
+# MAX_STEPS (20000), METHODS (the three) and STEPS (skips the calibration), EXTRA (more `--set`s for every run),
+# PACK (weights sheets infer: what to pack beside the table and log). Every stage has its own deadline inside
+# BUDGET_S (default 540), so the packing always runs.
 set -u
 START=$(date +%s)
 BUDGET=${1:-540}
@@ -30,7 +32,8 @@ left() { local r=$(( $1 - $(el) )); [ $r -lt 1 ] && r=1; echo $r; }
 log() { echo "[$(el) s] $*" | tee -a "$OUT/gpu_table.log"; }
 
 COMMON="--data $DATA --preset cpu --set data.crop=$CROP --set train.threads=1 --set train.progress=false \
---set train.device=$DEVICE --set train.ema=0.999"
+--set train.device=$DEVICE --set train.ema=0.999 ${EXTRA:-}"
+PACK=${PACK:-weights sheets infer}
 recipe() {   # the full table's recipe of each method (docs/training.md)
   case $1 in
     ours|no-tactile-gan) echo "--method $1 --set loss.tactile_r1=10 --set loss.diffaug=color,translation,cutout" ;;
@@ -54,33 +57,34 @@ log "machine: $(tr '\n' ' ' < "$OUT/machine.txt")"
 
 # 1. the step time of all runs side by side (80 steps, the first ones' warm-up included: an overestimate; the CLIP
 #    discriminator on from the start, so its step is in the time and its code has run here before the real runs)
-METHODS="ours no-tactile-gan ours-no-gan"
-train_all "$W/cal" 80 $((BUDGET * 15 / 100)) --set train.val_every=1000 --set train.sample_every=1000 \
-  --set train.ckpt_every=1000 --set loss.clip_start=0
-OK=""
-for m in $METHODS; do
-  if ls "$W"/cal/*/"$m"/metrics.json > /dev/null 2>&1; then OK="$OK $m"; else
-    log "calibration of $m failed; dropped. Its log:"; tail -n 25 "$(ls "$W"/cal/*/"$m".log | head -n 1)" >> "$OUT/gpu_table.log"
+METHODS=${METHODS:-ours no-tactile-gan ours-no-gan}
+if [ -n "${STEPS:-}" ]; then
+  N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
+  log "training $N runs ($METHODS) for $STEPS steps (given)"
+else
+  train_all "$W/cal" 80 $((BUDGET * 15 / 100)) --set train.val_every=1000 --set train.sample_every=1000 \
+    --set train.ckpt_every=1000 --set loss.clip_start=0
+  OK=""
+  for m in $METHODS; do
+    if ls "$W"/cal/*/"$m"/metrics.json > /dev/null 2>&1; then OK="$OK $m"; else
+      log "calibration of $m failed; dropped. Its log:"; tail -n 25 "$(ls "$W"/cal/*/"$m".log | head -n 1)" >> "$OUT/gpu_table.log"
+    fi
+  done
+  METHODS=${OK# }
+  SPS=$($PY -c "import json, sys, pathlib; v = [json.loads(p.read_text())['train']['seconds_per_step'] \
+for p in pathlib.Path(sys.argv[1]).glob('*/*/metrics.json')]; print(max(v) if v else '')" "$W/cal")
+  if [ -z "$SPS" ] || [ -z "$METHODS" ]; then
+    log "calibration failed; its logs:"; tail -n 30 "$W"/cal/*/*.log >> "$OUT/gpu_table.log"
+    tar -C "$W" -czf "$OUT/calibration_logs.tar.gz" cal; exit 1
   fi
-done
-METHODS=${OK# }
-SPS=$($PY - "$W/cal" <<'EOF'
-import json, sys, pathlib
-v = [json.loads(p.read_text())["train"]["seconds_per_step"] for p in pathlib.Path(sys.argv[1]).glob("*/*/metrics.json")]
-print(max(v) if v else "")
-EOF
-)
-if [ -z "$SPS" ] || [ -z "$METHODS" ]; then
-  log "calibration failed; its logs:"; tail -n 30 "$W"/cal/*/*.log >> "$OUT/gpu_table.log"
-  tar -C "$W" -czf "$OUT/calibration_logs.tar.gz" cal; exit 1
+  N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
+  STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/$SPS)//250*250; print(max(250, min(s, $MAX_STEPS)))")
+  if [ "$STEPS" -lt "$MIN_STEPS" ] && [ "$METHODS" = "ours no-tactile-gan ours-no-gan" ]; then
+    METHODS="ours ours-no-gan"; N=$((N * 2 / 3))   # two methods: each run gets 3/2 of its share of the GPU
+    STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/($SPS*2/3))//250*250; print(max(250, min(s, $MAX_STEPS)))")
+  fi
+  log "calibration: ${SPS} s/step with all runs side by side; training $N runs ($METHODS) for $STEPS steps"
 fi
-N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
-STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/$SPS)//250*250; print(max(250, min(s, $MAX_STEPS)))")
-if [ "$STEPS" -lt "$MIN_STEPS" ] && [ "$METHODS" = "ours no-tactile-gan ours-no-gan" ]; then
-  METHODS="ours ours-no-gan"; N=$((N * 2 / 3))   # two methods: each run gets 3/2 of its share of the GPU
-  STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/($SPS*2/3))//250*250; print(max(250, min(s, $MAX_STEPS)))")
-fi
-log "calibration: ${SPS} s/step with all runs side by side; training $N runs ($METHODS) for $STEPS steps"
 
 # 2. the runs (a run still going at the deadline gets SIGTERM, saves its latest checkpoint, and is marked so)
 train_all "$W/runs" "$STEPS" "$TRAIN_END"
@@ -101,7 +105,7 @@ timeout "$(left "$TABLE_END")" $PY -m vtkiosk eval --compare "${ARGS[@]}" --whic
 log "table: exit $? ($(ls "$W/table" 2>/dev/null | tr '\n' ' '))"
 
 # 4. the generator's inference time at the paper's 1536 px, beside the paper's 0.19 s
-timeout 25 $PY scripts/gpu_infer_time.py --run "$W/runs/DenimShorts/ours" --out "$OUT/gpu_infer.json" --repeats 20 \
+[[ " $PACK " == *" infer "* ]] && timeout 25 $PY scripts/gpu_infer_time.py --run "$W/runs/DenimShorts/ours" --out "$OUT/gpu_infer.json" --repeats 20 \
   >> "$OUT/gpu_table.log" 2>&1
 
 # 5. pack: the table, each run's record and scores, and its generator in fp16 (to score again elsewhere)
@@ -118,8 +122,8 @@ for ck_path in w.glob("runs/*/*/checkpoints/latest.pt"):
     torch.save(ck, out / "latest.pt")
 EOF
 tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples --exclude='sheet_*' table runs
-tar -C "$W" -cf "$OUT/sheets.tar" $(cd "$W" && ls table/sheet_* 2>/dev/null)
-for m in $METHODS; do
+[[ " $PACK " == *" sheets "* ]] && tar -C "$W" -cf "$OUT/sheets.tar" $(cd "$W" && ls table/sheet_* 2>/dev/null)
+[[ " $PACK " == *" weights "* ]] && for m in $METHODS; do
   tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
 done
 log "packed: $(ls -s "$OUT" | tr '\n' ' ')"

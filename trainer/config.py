@@ -125,6 +125,9 @@ class TrainConfig:
     # Where the step runs: "cpu", "cuda", "cuda:N", or "auto" (the first GPU when torch sees one, else the CPU).
     # How a run is executed, not what it learns: a resume may change it and the recipe hash leaves it out.
     device: str = "cpu"
+    # TF32 (10-bit mantissa) in a GPU's convolutions and matmuls: PyTorch's default for cuDNN convolutions, off here
+    # so that a GPU computes what the CPU does in float32 (docs/training.md, "On a GPU").
+    tf32: bool = False
 
 
 @dataclass(frozen=True)

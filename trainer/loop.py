@@ -53,6 +53,8 @@ def set_determinism(cfg: RunConfig, device: torch.device) -> None:
     torch.set_num_threads(cfg.train.threads)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
+    if device.type == "cuda":
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = cfg.train.tf32
     if cfg.train.deterministic:
         if device.type == "cuda":
             # cuBLAS is deterministic only with a fixed workspace, which must be set before it starts; some CUDA

@@ -99,3 +99,9 @@ def test_the_machine_record_names_a_gpu_only_when_one_trains():
     gpu = cpu | {"gpu": "NVIDIA H200 (sm_90, CUDA 13.0)"}
     assert provenance.summary(gpu).endswith(" on NVIDIA H200 (sm_90, CUDA 13.0)")
     assert not provenance.same_kernels(cpu, gpu)           # a resume that moves to a GPU starts a new stretch
+
+
+def test_tf32_is_an_execution_switch_and_off_by_default():
+    assert load_config("cpu").train.tf32 is False
+    old = load_config("cpu").to_dict()
+    assert recipe_differences(old, load_config("cpu", overrides=["train.tf32=true"]).to_dict()) == ([], [])

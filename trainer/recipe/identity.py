@@ -11,7 +11,7 @@ import json
 # recipe hash leaves them out. Everything else (train.steps too: it sets the learning-rate decay) is the recipe.
 EXECUTION_KEYS = frozenset({("garment",), ("train", "threads"), ("train", "progress"), ("train", "log_every"),
                             ("train", "sample_every"), ("train", "ckpt_every"), ("train", "deterministic"),
-                            ("train", "device")})
+                            ("train", "device"), ("train", "tf32")})
 
 
 def recipe_view(cfg: dict) -> dict:
