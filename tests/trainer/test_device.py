@@ -105,3 +105,23 @@ def test_tf32_is_an_execution_switch_and_off_by_default():
     assert load_config("cpu").train.tf32 is False
     old = load_config("cpu").to_dict()
     assert recipe_differences(old, load_config("cpu", overrides=["train.tf32=true"]).to_dict()) == ([], [])
+
+
+def test_the_r1_check_agrees_with_itself_on_the_cpu(tmp_path):
+    """scripts/gpu_r1_check.py, the prepared GPU check, run on the CPU alone: float32 must agree with float64 to
+    float32's rounding (were the augmentation's draws tied to the dtype, the diffaug rows would differ by ~30 %)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "r1.json"
+    subprocess.run([sys.executable, str(root / "scripts" / "gpu_r1_check.py"), "--devices", "cpu", "--patches", "24",
+                    "--out", str(out)], check=True, cwd=root, capture_output=True, timeout=300)
+    rows = json.loads(out.read_text())["rows"]
+    assert {(r["dtype"], r["diffaug"]) for r in rows} == {("float64", "off"), ("float32", "off"),
+                                                         ("float64", "color,translation,cutout"),
+                                                         ("float32", "color,translation,cutout")}
+    for r in rows:
+        assert np.isfinite(r["r1"]) and r["r1"] > 0
+        assert r["r1_rel_diff"] < 1e-4 and r["grad_rel_diff"] < 1e-2, r

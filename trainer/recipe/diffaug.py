@@ -28,7 +28,8 @@ def parse_policy(policy: str) -> tuple[str, ...]:
 def _color(x: torch.Tensor, rgb: slice, g: torch.Generator) -> torch.Tensor:
     n = x.shape[0]
     c = x[:, rgb]
-    r = lambda: torch.rand(n, 1, 1, 1, generator=g, dtype=x.dtype).to(x.device)  # noqa: E731
+    # drawn in float32 on the CPU whatever x is: the transform depends on the seed alone
+    r = lambda: torch.rand(n, 1, 1, 1, generator=g).to(device=x.device, dtype=x.dtype)  # noqa: E731
     c = c + (r() - 0.5)                                          # brightness
     mean_ch = c.mean(dim=1, keepdim=True)
     c = (c - mean_ch) * (r() * 2) + mean_ch                      # saturation
