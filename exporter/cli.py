@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from exporter.quiet import chatter_to
@@ -17,6 +18,17 @@ def _sizes(text: str) -> list[tuple[int, int]]:
             raise argparse.ArgumentTypeError(f"sizes look like 512,768 or 1024x768; got {item!r}") from exc
         out.append((w, h))
     return out
+
+
+def _levels(text: str) -> float:
+    """An error bound in friction levels: finite and not negative (NaN would silently disable the check)."""
+    try:
+        v = float(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"a bound in friction levels, e.g. 2.0; got {text!r}") from exc
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"a bound in friction levels must be finite and >= 0; got {text!r}")
+    return v
 
 
 def _islands(text: str) -> tuple[str, ...]:
@@ -45,9 +57,14 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--int8-fp32", type=_islands, default=None, metavar="PARTS",
                    help="int8 only: graph parts kept in fp32, comma-separated from "
                         "pe,first-conv,heads,tactile-branch, or 'none' (default pe,first-conv,heads)")
-    p.add_argument("--max-friction-mae", type=float, default=1.0,
+    p.add_argument("--max-friction-mae", type=_levels, default=1.0,
                    help="refuse an int8 graph whose friction-map error exceeds this many levels (default 1)")
-    p.add_argument("--force", action="store_true", help="write the bundle even above --max-friction-mae")
+    p.add_argument("--max-friction-mae-garment", type=_levels, default=None, metavar="LEVELS",
+                   help="also refuse an int8 graph whose friction-map error over the garment alone exceeds this "
+                        "(the canvas figure counts the blank paper around the garment, where the error is 0; "
+                        "default: no such bound)")
+    p.add_argument("--force", action="store_true",
+                   help="write the bundle even above --max-friction-mae / --max-friction-mae-garment")
     p.add_argument("--model-version", default=None,
                    help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
@@ -70,6 +87,7 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
     key = load_private_key(args.sign_key) if args.sign_key else None
     cfg = ExportConfig(precision=args.precision, sizes=args.sizes, which=args.which,
                        calibration_method=args.calibration, max_friction_mae=args.max_friction_mae,
+                       max_friction_mae_garment=args.max_friction_mae_garment,
                        force=args.force, model_version=args.model_version, display_name=args.display_name,
                        normalization=args.normalization, runs_root=args.runs_root,
                        share_weights=not args.embed_weights)

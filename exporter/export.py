@@ -46,6 +46,8 @@ class ExportConfig:
     calibration_method: str = "percentile"   # measured best for int8 error (docs/performance.md)
     fp32_islands: tuple[str, ...] = DEFAULT_FP32_ISLANDS   # int8 only: parts kept in fp32 (exporter/quantize.py)
     max_friction_mae: float = 1.0      # uint8 levels; int8 graphs above this are refused unless forced
+    # the same over the garment alone (exporter/accuracy.py: the canvas figure is diluted by blank paper); None: no bound
+    max_friction_mae_garment: float | None = None
     force: bool = False
     which: str = "best"
     panel_size: tuple[int, int] = (1280, 800)
@@ -233,11 +235,16 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
                 errors.setdefault(cfg.precision, {}).update({f"{kind}_{k}": v for k, v in err.items()})
                 progress(f"export: {kind} graph {cfg.precision} vs fp32: " +
                          ", ".join(f"{k} {v:.4g}" for k, v in err.items()))
-                fmae = err.get("friction_mae_levels")
-                if fmae is not None and fmae > cfg.max_friction_mae and cfg.precision == "int8" and not cfg.force:
-                    raise ExportError(f"int8 {kind} graph's friction-map error is {fmae:.2f} levels of 255 "
-                                      f"(bound {cfg.max_friction_mae}); not writing it. Export fp32/fp16, raise "
-                                      "--max-friction-mae, or --force")
+                for key, bound, flag, where in (
+                        ("friction_mae_levels", cfg.max_friction_mae, "--max-friction-mae", "over the canvas"),
+                        ("friction_mae_garment_levels", cfg.max_friction_mae_garment, "--max-friction-mae-garment",
+                         "in the garment")):
+                    fmae = err.get(key)
+                    if fmae is not None and bound is not None and fmae > bound and cfg.precision == "int8" \
+                            and not cfg.force:
+                        raise ExportError(f"int8 {kind} graph's friction-map error is {fmae:.2f} levels of 255 "
+                                          f"{where} (bound {bound}); not writing it. Export fp32/fp16, raise "
+                                          f"{flag}, or --force")
             rel = f"graphs/{kind}.{cfg.precision}.onnx"
             sources[rel] = path
             graphs[kind] = GraphSpec(rel, cfg.precision, list(GRAPH_OUTPUTS[kind]), [list(s) for s in cfg.sizes])

@@ -76,6 +76,27 @@ def test_int8_error_bound_refusal_and_force(run_dir, tmp_path):
     assert (tmp_path / "q.vtb").exists()
 
 
+def test_int8_garment_error_bound(run_dir, tmp_path):
+    """The garment figure is stated beside the canvas one (never smaller: the paper around the garment has no
+    error) and can be bounded on its own; a canvas bound that passes does not let a garment bound through."""
+    cfg = ExportConfig(precision="int8", sizes=[(256, 256)], calibration_per_size=3, error_per_size=2,
+                       graphs=("tactile",), max_friction_mae=255.0, max_friction_mae_garment=0.0)
+    with pytest.raises(ExportError, match="in the garment .*--max-friction-mae-garment"):
+        export_run(run_dir, tmp_path / "g.vtb", cfg, progress=lambda *_: None)
+    assert not (tmp_path / "g.vtb").exists()
+    cfg.max_friction_mae_garment = 255.0
+    errors = export_run(run_dir, tmp_path / "g.vtb", cfg, progress=lambda *_: None).errors["int8"]
+    assert errors["tactile_friction_mae_garment_levels"] >= errors["tactile_friction_mae_levels"] > 0
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "inf", "two"])
+def test_cli_rejects_a_bound_that_is_not_a_level(run_dir, tmp_path, value):
+    for flag in ("--max-friction-mae", "--max-friction-mae-garment"):
+        bad = vtk("export", "--run", run_dir, "--out", tmp_path / "x.vtb", flag, value)
+        assert bad.returncode == 2 and "friction levels" in bad.stderr and "Traceback" not in bad.stderr
+        assert not (tmp_path / "x.vtb").exists()
+
+
 def test_cli_signed_export_and_errors(run_dir, tmp_path):
     assert vtk("keys", "generate", "--out", tmp_path / "keys").returncode == 0
     (tmp_path / "trusted").mkdir()
