@@ -46,7 +46,7 @@ class ExportConfig:
     calibration_method: str = "percentile"   # measured best for int8 error (docs/performance.md)
     fp32_islands: tuple[str, ...] = DEFAULT_FP32_ISLANDS   # int8 only: parts kept in fp32 (exporter/quantize.py)
     max_friction_mae: float = 1.0      # uint8 levels; int8 graphs above this are refused unless forced
-    # the same over the garment alone (exporter/accuracy.py: the canvas figure is diluted by blank paper); None: no bound
+    # the same over the garment alone (exporter/accuracy.py: the canvas figure is diluted by the paper); None: none
     max_friction_mae_garment: float | None = None
     force: bool = False
     which: str = "best"

@@ -12,7 +12,8 @@ COLUMNS = [("setting", "setting", "{}"), ("size", "grid", "{}"), ("graph", "grap
            ("p50_ms", "p50 ms", "{:.1f}"), ("p95_ms", "p95 ms", "{:.1f}"), ("speedup_vs_torch", "x torch", "{:.2f}"),
            ("peak_rss_mb", "peak RSS MiB", "{:.0f}"), ("gmac", "GMAC", "{:.2f}"), ("graph_bytes", "graph MB", "{:.2f}"),
            ("visual_psnr_db", "PSNR dB", "{:.1f}"), ("friction_mae_levels", "friction MAE", "{:.2f}"),
-           ("friction_mae_garment_levels", "in garment", "{:.2f}"), ("friction_max_levels", "friction max", "{:.0f}"), ("full_angle_deg", "GT angle deg", "{:.2f}"),
+           ("friction_mae_garment_levels", "in garment", "{:.2f}"), ("friction_max_levels", "friction max", "{:.0f}"),
+           ("full_angle_deg", "GT angle deg", "{:.2f}"),
            ("full_friction_mae", "GT friction MAE", "{:.2f}")]
 TEXT_COLUMNS = 6
 
