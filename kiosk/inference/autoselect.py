@@ -3,9 +3,14 @@
 Speed order between engines depends on the CPU (ISA, cache) and on the graph, so it is measured where it matters:
 on this kiosk, on this bundle's graphs, on its own reference sketch. ONNX Runtime is the reference (the exporter
 states the bundle's error with it); another engine is eligible only if its outputs differ from ONNX Runtime's by
-at most the bundle's stated error bound: mean absolute difference in 8-bit levels (127.5 per unit of the tanh
-outputs) at most the bundle's `errors.<precision>.friction_mae_levels`, or `DEFAULT_BOUND_LEVELS` for a bundle
-that states none. An engine that fails to load or run is recorded with its reason and skipped.
+no more than the bundle already accepts from quantization, in the units the exporter states it in:
+- tactile: the friction map the finger gets (the bundle's own mapping), mean absolute difference in its levels,
+  over the grid (`<kind>_friction_mae_levels`) and, where the bundle states it, over the garment
+  (`<kind>_friction_mae_garment_levels`);
+- visual: PSNR against ONNX Runtime's image at least the stated `<kind>_visual_psnr_db`.
+A bundle that states no error for its graphs' precision (fp32) gets `DEFAULT_BOUND_LEVELS` friction levels and
+`DEFAULT_VISUAL_LEVELS` colour levels of mean difference. An engine that fails to load or run, or returns NaN/Inf,
+is recorded with its reason and skipped.
 """
 from __future__ import annotations
 
@@ -16,21 +21,25 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from kiosk.bundle.archive import Bundle
-from kiosk.contract.graph import feeds
+from kiosk.contract.graph import feeds, unpack
+from kiosk.contract.haptics import friction_map
 from kiosk.contract.sketch import letterbox, network_input, object_mask
 from kiosk.inference.backends import available, open_graph
 from kiosk.inference.sessions import SessionSettings
 from kiosk.inference.cpu import describe
 
-DEFAULT_BOUND_LEVELS = 0.5
-LEVELS_PER_UNIT = 127.5
+DEFAULT_BOUND_LEVELS = 0.5      # friction levels, for a bundle that states no error at its precision
+DEFAULT_VISUAL_LEVELS = 0.5     # 8-bit colour levels of mean difference, likewise
+LEVELS_PER_UNIT = 127.5         # 8-bit colour levels per unit of the visual's tanh output
 
 
 @dataclass(frozen=True)
 class EngineFigures:
     engine: str
     ms_p50: float | None = None           # summed over the bundle's graphs, median of the timed runs
-    err_levels: float | None = None       # worst graph/output mean |diff| vs ONNX Runtime, 8-bit levels
+    err_levels: float | None = None       # worst graph's friction-map mean |diff| vs ONNX Runtime, levels
+    err_garment_levels: float | None = None  # the same over the garment (mask) alone
+    visual_psnr_db: float | None = None   # worst graph's visual PSNR against ONNX Runtime's (99 = identical)
     eligible: bool = False
     reason: str = ""
 
@@ -43,9 +52,37 @@ class EngineChoice:
     runs: int
     figures: list[EngineFigures] = field(default_factory=list)
     cpu: dict = field(default_factory=dict)  # kiosk.inference.cpu.describe(): the figures hold on this CPU only
+    bounds: dict[str, dict[str, float]] = field(default_factory=dict)  # per graph: what an engine must stay within
 
     def to_json(self) -> dict:
         return asdict(self)
+
+
+def _stated(bundle: Bundle, kind: str, name: str) -> float | None:
+    """`<kind>_<name>` (what the exporter writes) or `<name>` under the graph's precision, if finite."""
+    g = bundle.manifest.graph(kind)
+    errs = bundle.manifest.errors.get(g.precision, {})
+    v = errs.get(f"{kind}_{name}", errs.get(name))
+    return float(v) if v is not None and np.isfinite(v) else None
+
+
+def graph_bounds(bundle: Bundle, kind: str) -> dict[str, float]:
+    """What another engine may differ from ONNX Runtime by on one graph: the bundle's stated quantization error."""
+    spec = bundle.manifest.graph(kind)
+    out: dict[str, float] = {}
+    if "tactile" in spec.outputs:
+        canvas = _stated(bundle, kind, "friction_mae_levels")
+        out["friction_mae_levels"] = canvas if canvas is not None and canvas > 0 else DEFAULT_BOUND_LEVELS
+        garment = _stated(bundle, kind, "friction_mae_garment_levels")
+        if garment is not None and garment > 0:
+            out["friction_mae_garment_levels"] = garment
+    if "visual" in spec.outputs:
+        psnr_db = _stated(bundle, kind, "visual_psnr_db")
+        if psnr_db is not None and psnr_db > 0:
+            out["visual_psnr_db"] = psnr_db
+        else:
+            out["visual_mae_levels"] = DEFAULT_VISUAL_LEVELS
+    return out
 
 
 def error_bound(bundle: Bundle) -> float:
@@ -76,13 +113,51 @@ def _feed(bundle: Bundle, grid: tuple[int, int]) -> dict[str, np.ndarray]:
     return feeds(np.zeros((1, 1, h, w), np.float32), np.ones((1, 1, h, w), np.float32))
 
 
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR of two images in [-1, 1]; identical images give 99 dB (no division by a zero error)."""
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse <= 1e-12 else float(10 * np.log10(4.0 / mse))
+
+
+def deviation(bundle: Bundle, outputs: list[str], ref: list[np.ndarray], got: list[np.ndarray],
+              mask: np.ndarray) -> dict[str, float]:
+    """How far one engine's outputs are from ONNX Runtime's on one graph, in the units of `graph_bounds`."""
+    m = bundle.manifest
+    out: dict[str, float] = {}
+    for name, r, g in zip(outputs, ref, got):
+        if name == "tactile":
+            fr, fg = (friction_map(t[0, 0], t[0, 1], m.friction_scale, normalization=m.friction_normalization,
+                                   constants=m.friction_constants).astype(np.int16) for t in (r, g))
+            diff = np.abs(fr - fg)
+            out["friction_mae_levels"] = float(np.mean(diff))
+            inside = np.asarray(mask).reshape(diff.shape) > 0.5
+            if inside.any():  # a blank feed has no garment to state an error over
+                out["friction_mae_garment_levels"] = float(np.mean(diff[inside]))
+        elif name == "visual":
+            out["visual_psnr_db"] = _psnr(r, g)
+            out["visual_mae_levels"] = LEVELS_PER_UNIT * float(np.mean(np.abs(r - g)))
+    return out
+
+
+def _breaches(dev: dict[str, float], bounds: dict[str, float]) -> list[str]:
+    """The bounds `dev` breaks, worded; PSNR must reach its bound, every other figure stay within its own."""
+    bad = []
+    for key, bound in bounds.items():
+        v = dev.get(key)
+        if v is None:
+            continue
+        if (v < bound) if key == "visual_psnr_db" else (v > bound):
+            bad.append(f"{key} {v:.3g} against the bound {bound:g}")
+    return bad
+
+
 def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None = None, max_side: int = 512,
                   runs: int = 3, engines: tuple[str, ...] | None = None,
                   settings: SessionSettings | None = None) -> EngineChoice:
     """Benchmark the engines on every graph of the bundle and pick one (ONNX Runtime if nothing else qualifies)."""
     engines = tuple(engines or available())
-    bound = error_bound(bundle)
     kinds = list(bundle.manifest.graphs)
+    bounds = {k: graph_bounds(bundle, k) for k in kinds}
     grids = {k: bench_grid(bundle, k, max_side) for k in kinds}
     inputs = {k: _feed(bundle, grids[k]) for k in kinds}
     reference: dict[str, list[np.ndarray]] = {}
@@ -90,7 +165,8 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
     order = ["onnxruntime"] + [e for e in engines if e != "onnxruntime"]
     for engine in order:
         total: list[float] = [0.0] * runs
-        worst = 0.0
+        worst: dict[str, float] = {}
+        breaches: list[str] = []
         try:
             for kind in kinds:
                 spec = bundle.manifest.graph(kind)
@@ -105,19 +181,31 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
                     raise ValueError("non-finite output")
                 if engine == "onnxruntime":
                     reference[kind] = outs
-                else:
-                    worst = max(worst, *(LEVELS_PER_UNIT * float(np.mean(np.abs(o - r)))
-                                         for o, r in zip(outs, reference[kind])))
+                    continue
+                dev = deviation(bundle, spec.outputs, reference[kind], outs, unpack(inputs[kind])[1])
+                breaches += [f"{kind}: {b}" for b in _breaches(dev, bounds[kind])]
+                for key, v in dev.items():
+                    worse = min if key == "visual_psnr_db" else max
+                    worst[key] = worse(worst.get(key, v), v)
         except Exception as exc:  # noqa: BLE001 - any engine failure makes it ineligible, with its reason
             if engine == "onnxruntime":
                 raise
             figures.append(EngineFigures(engine, reason=f"failed: {str(exc).splitlines()[0][:200]}"))
             continue
-        ok = worst <= bound
-        figures.append(EngineFigures(engine, round(statistics.median(total), 3), float(f"{worst:.4g}"), ok,
-                                     "" if ok else f"error {worst:.3g} levels exceeds the bound {bound:g}"))
+        if engine == "onnxruntime":  # the reference: no deviation from itself, in the figures the others get
+            outputs = {o for k in kinds for o in bundle.manifest.graph(k).outputs}
+            worst = ({"friction_mae_levels": 0.0, "friction_mae_garment_levels": 0.0} if "tactile" in outputs
+                     else {}) | ({"visual_psnr_db": 99.0} if "visual" in outputs else {})
+
+        def fig(key: str) -> float | None:
+            return float(f"{worst[key]:.4g}") if key in worst else None
+
+        figures.append(EngineFigures(engine, round(statistics.median(total), 3), fig("friction_mae_levels"),
+                                     fig("friction_mae_garment_levels"), fig("visual_psnr_db"), not breaches,
+                                     "; ".join(breaches)[:400]))
     best = min((f for f in figures if f.eligible), key=lambda f: f.ms_p50)
-    return EngineChoice(best.engine, bound, {k: list(g) for k, g in grids.items()}, runs, figures, describe())
+    return EngineChoice(best.engine, error_bound(bundle), {k: list(g) for k, g in grids.items()}, runs, figures,
+                        describe(), bounds)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,8 +21,8 @@ class ServiceMetrics:
                               labels=("garment", "engine"))
         self.engine_ms = r.gauge("vtkiosk_engine_bench_ms", "Activation benchmark (engine: auto): median ms per "
                                  "pass over the bundle's graphs.", labels=("garment", "engine"))
-        self.engine_err = r.gauge("vtkiosk_engine_bench_error_levels", "Activation benchmark: mean |diff| vs "
-                                  "ONNX Runtime in 8-bit levels.", labels=("garment", "engine"))
+        self.engine_err = r.gauge("vtkiosk_engine_bench_error_levels", "Activation benchmark: friction-map mean "
+                                  "|diff| vs ONNX Runtime, levels, worst graph.", labels=("garment", "engine"))
         self.cache = r.counter("vtkiosk_cache_total", "Output cache lookups by the planner.", labels=("result",))
         self.pixels = r.counter("vtkiosk_pixels_total", "Network pixels computed vs the naive full-frame plan.",
                                 labels=("plan",))

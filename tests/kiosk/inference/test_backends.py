@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from kiosk.bundle.archive import open_bundle
 from kiosk.bundle.signature import load_trusted_keys
@@ -96,13 +98,49 @@ def test_auto_records_both_engines_and_picks_the_faster_eligible(tmp_path):
 
 
 def test_auto_refuses_an_engine_outside_the_stated_bound(tmp_path):
-    # the bundle states an error so small that any float difference between engines exceeds it
-    lb = LoadedBundle(_bundle(tmp_path, errors={"fp32": {"friction_mae_levels": 1e-12}}), engine="auto",
-                      auto_runs=1)
+    # the bundle states a visual error so small (PSNR above the 99 dB that identical images score) that no second
+    # engine can meet it; ONNX Runtime, the reference, serves
+    lb = LoadedBundle(_bundle(tmp_path, errors={"fp32": {"visual_psnr_db": 1e9}}), engine="auto", auto_runs=1)
     figs = {f.engine: f for f in lb.engine_choice.figures}
-    assert figs["openvino"].err_levels > 1e-12 and not figs["openvino"].eligible
-    assert "exceeds the bound" in figs["openvino"].reason
+    assert figs["openvino"].visual_psnr_db <= 99.0 and not figs["openvino"].eligible
+    assert "visual_psnr_db" in figs["openvino"].reason and "against the bound 1e+09" in figs["openvino"].reason
     assert lb.engine == "onnxruntime"
+    assert lb.engine_choice.bounds["visual"] == {"visual_psnr_db": 1e9}
+
+
+def test_engine_deviation_is_in_friction_levels_over_grid_and_garment(tmp_path):
+    from kiosk.contract.haptics import friction_map
+    from kiosk.inference.autoselect import _breaches, deviation
+    b = _bundle(tmp_path)
+    rng = np.random.default_rng(0)
+    mask = np.zeros((1, 1, 64, 64), np.float32)
+    mask[..., 16:48, 16:48] = 1.0
+    ref = (rng.normal(0, 0.1, (1, 2, 64, 64)) * mask).astype(np.float32)
+    got = ref.copy()
+    got[..., 16:48, 16:48] *= 1.5  # the engine renders the garment's slopes 1.5x steeper; outside both are 0
+    dev = deviation(b, ["tactile"], [ref], [got], mask)
+    m = b.manifest
+    fr, fg = (friction_map(t[0, 0], t[0, 1], m.friction_scale).astype(int) for t in (ref, got))
+    assert dev["friction_mae_levels"] == pytest.approx(np.abs(fr - fg).mean())
+    # the canvas figure is the garment's diluted by the blank quarter-area paper's zeros
+    assert dev["friction_mae_garment_levels"] == pytest.approx(4 * dev["friction_mae_levels"])
+    assert dev["friction_mae_levels"] > 1.0  # in friction levels, not 127.5 x the slope difference
+    bounds = {"friction_mae_levels": 100.0, "friction_mae_garment_levels": 1.0}
+    assert _breaches(dev, bounds) == [f"friction_mae_garment_levels {dev['friction_mae_garment_levels']:.3g} "
+                                      "against the bound 1"]
+    same = deviation(b, ["visual", "tactile"], [ref[:, :1], ref], [ref[:, :1], ref], np.zeros_like(mask))
+    assert same == {"visual_psnr_db": 99.0, "visual_mae_levels": 0.0, "friction_mae_levels": 0.0}
+
+
+def test_graph_bounds_read_the_stated_errors_and_fall_back(tmp_path):
+    from kiosk.inference.autoselect import DEFAULT_VISUAL_LEVELS, graph_bounds
+    stated = {"fp32": {"full_friction_mae_levels": 0.9, "full_friction_mae_garment_levels": 3.0,
+                       "full_visual_psnr_db": 47.0, "tactile_friction_mae_levels": 0.0}}
+    b = _bundle(tmp_path / "a", errors=stated)
+    assert graph_bounds(b, "full") == {"friction_mae_levels": 0.9, "friction_mae_garment_levels": 3.0,
+                                       "visual_psnr_db": 47.0}
+    assert graph_bounds(b, "tactile") == {"friction_mae_levels": DEFAULT_BOUND_LEVELS}  # 0 is no bound
+    assert graph_bounds(b, "visual") == {"visual_mae_levels": DEFAULT_VISUAL_LEVELS}
 
 
 def test_error_bound_reads_the_bundle_and_falls_back(tmp_path):
@@ -157,3 +195,25 @@ def test_autoselect_command_prints_the_choice_and_fails_in_one_line(tmp_path, ca
     assert main([str(tmp_path / "missing.vtb"), "--runs", "1"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**31 - 1), side=st.integers(1, 24), gain=st.floats(0.0, 4.0))
+def test_engine_deviation_is_symmetric_finite_and_never_divides_by_zero(tmp_path, seed, side, gain):
+    from kiosk.inference.autoselect import deviation
+    b = _BUNDLES.get(tmp_path) or _BUNDLES.setdefault(tmp_path, _bundle(tmp_path))  # one per test, not per example
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((1, 1, side, side)) > 0.5).astype(np.float32)  # may be empty: no garment figure then
+    ref = np.tanh(rng.normal(0, 0.2, (1, 2, side, side))).astype(np.float32) * mask
+    got = np.clip(ref * np.float32(gain), -1, 1)
+    one = deviation(b, ["visual", "tactile"], [ref[:, :1], ref], [got[:, :1], got], mask)
+    two = deviation(b, ["visual", "tactile"], [got[:, :1], got], [ref[:, :1], ref], mask)
+    assert one == two and all(np.isfinite(v) and v >= 0 for v in one.values())
+    assert ("friction_mae_garment_levels" in one) == bool(mask.any())
+    if mask.any():  # outside the garment both are 0, so the grid figure is the garment's diluted, never larger
+        assert one["friction_mae_levels"] <= one["friction_mae_garment_levels"] + 1e-9
+    same = deviation(b, ["visual", "tactile"], [ref[:, :1], ref], [ref[:, :1], ref], mask)
+    assert same["visual_psnr_db"] == 99.0 and same["friction_mae_levels"] == 0.0
+
+
+_BUNDLES: dict = {}
