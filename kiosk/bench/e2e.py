@@ -36,6 +36,8 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from kiosk.bench.strokes import Session, sessions
+from kiosk.inference.cpu import describe
+from kiosk.inference.scene import QUICK_FELT_TOLERANCE, QUICK_TACTILE
 
 ROOT = Path(__file__).resolve().parents[2]
 HS_HID_BYTES_PER_S = 24_576_000.0
@@ -64,6 +66,7 @@ class Final:
     refine_visual_ms: float | None = None
     refine_friction_ms: float | None = None
     refine_grid: list | None = None
+    deferred: bool = False   # the quick answer left the friction to the refinement
 
 
 @dataclass
@@ -174,13 +177,16 @@ def replay(client: Client, garment: str, sess: Session, res: Results, panel=(0, 
         friction_ms = None
         if commit and commit["status"] == "committed":
             friction_ms = 1e3 * (commit["committed_at"] - t_end)
-        elif commit and commit["status"] == "superseded" and rcommit and rcommit["status"] == "committed":
-            friction_ms = 1e3 * (rcommit["committed_at"] - t_end)  # the finger got the refined frame first
+        elif (commit is None or commit["status"] == "superseded") and rcommit and rcommit["status"] == "committed":
+            # the finger got the refined frame first: the quick one was superseded, or the quick answer left the
+            # friction to the refinement (inference.quick_tactile: at-scale)
+            friction_ms = 1e3 * (rcommit["committed_at"] - t_end)
         final = Final(sess.name, action.label, p["graph"], p["grid"], 1e3 * (t_visual - t_end),
                       friction_ms, meta["timings"], commit["friction_ms"] if commit else None,
                       commit["upload_ms"] if commit else None,
                       commit["wire_bytes"] if commit else 0, meta["plan"]["computed_pixels"],
                       meta["plan"]["naive_pixels"])
+        final.deferred = "tactile" in p.get("deferred", [])
         if rmeta is not None:
             final.refine_visual_ms = 1e3 * (t_refined - t_end)
             final.refine_grid = rmeta["plan"]["panels"][0]["grid"]
@@ -320,6 +326,7 @@ def summarize(res: Results, status: dict, mem: tuple[float, float] | None) -> di
                                             if res.garment_drawing_s else 0.0,
                                             "min_stroke_fps": min(res.stroke_fps) if res.stroke_fps else 0.0,
                                             "latency_ms": _stats(res.preview_ms)},
+           "deferred_friction": sum(f.deferred for f in res.finals),
            "grids": sorted({f"{f.graph} {f.grid[0]}x{f.grid[1]}" for f in work if f.grid}),
            "refine_grids": sorted({f"{g[0]}x{g[1]}" for g in (f.refine_grid for f in refined) if g}),
            "pixels": {"computed": computed, "naive_full_frame_full_graph": naive,
@@ -370,7 +377,10 @@ def table(s: dict) -> str:
              f"- first answers ran {', '.join(s['grids']) or 'nothing'}; refinements ran "
              f"{', '.join(s['refine_grids']) or 'nothing'}; network pixels computed {s['pixels']['computed']:,} vs "
              f"{s['pixels']['naive_full_frame_full_graph']:,} for the naive full-frame full-graph plan "
-             f"({100 * (s['pixels']['ratio'] or 0):.1f} %)"]
+             f"({100 * (s['pixels']['ratio'] or 0):.1f} %)",
+             f"- first answers that left the friction to the refinement (texture felt > "
+             f"{QUICK_FELT_TOLERANCE:g}x coarser at the quick grid): {s.get('deferred_friction', 0)} of "
+             f"{s['finals']}; the friction row above is then the refined frame's"]
     inc = s.get("incremental")
     if inc:
         lines.append(f"- incremental check ({inc['edits']} edits, {inc['window']} px window vs the object region): "
@@ -420,6 +430,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
                    help="the daemon's inference.max_resolution (default: the config default, 512)")
     p.add_argument("--no-refine", action="store_true",
                    help="answer stroke ends at full resolution in one step (inference.refine: false)")
+    p.add_argument("--quick-tactile", choices=QUICK_TACTILE, default=None,
+                   help="the daemon's inference.quick_tactile (default: the config default, at-scale)")
     p.add_argument("--engine", choices=("onnxruntime", "openvino", "auto"), default=None,
                    help="the daemon's inference.engine.type (default: the config default, onnxruntime)")
     p.add_argument("--incremental", action="store_true", help="also measure window-only recomputation error")
@@ -459,6 +471,8 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
                                  preview_max_resolution=min(256, args.max_resolution))
             if args.no_refine:
                 inference["refine"] = False
+            if args.quick_tactile:
+                inference["quick_tactile"] = args.quick_tactile
             if args.engine:
                 inference["engine"] = {"type": args.engine}
             if inference:
@@ -470,6 +484,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench e2e") -> int:
         summary["incremental"] = measure_incremental(bundle, trusted, args.allow_unsigned)
     summary["wall_s"] = time.perf_counter() - t0
     summary["command"] = "vtkiosk bench e2e " + " ".join(argv)
+    summary["cpu"] = describe()  # the figures hold on this CPU (model, ISA families) only
     if summary["torch_imported"] is not False:
         raise BenchError("torch was imported in the daemon process; the edge runtime must never load it")
     text = header(summary, bundle) + "\n\n" + table(summary)

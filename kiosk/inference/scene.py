@@ -17,7 +17,10 @@ turns a scene plus the panels' sketches into the work, per panel:
   never changes the scale. When the object needs more than the bundle's largest declared size (or
   `inference.max_resolution`) allows, the scale drops to what fits, the texture is felt coarser than the fabric,
   and the planner logs one warning per bundle and cause. Previews and the quick first answer at stroke end use
-  `preview_max_resolution` and may drop the scale the same way (silently: the refinement restores it).
+  `preview_max_resolution` and may drop the scale the same way (silently: the refinement restores it). A quick
+  answer whose texture would be felt more than `QUICK_FELT_TOLERANCE` coarser leaves the friction to the refinement
+  (`quick_tactile: at-scale`, `PanelPlan.deferred`): a finger lifted at the stroke's end rarely comes back to feel
+  within the ~100 ms the refinement takes.
 - resolution, without a panel pitch (legacy): the panel's own pixels (scale <= 1), capped as above; a grid side is
   rounded down to a multiple of 256 when that costs at most `MAX_ROUNDING_LOSS` of linear resolution, else up.
 - reuse: the cache key is the network input's content (sketch and mask bytes at the grid) + grid + bundle +
@@ -52,6 +55,8 @@ MAX_ROUNDING_LOSS = 0.15  # rounding a grid side down may lose at most this much
 REFERENCE_FILL = 0.8     # a reference sketch fills this fraction of its panel (the rest is margin)
 GAP_FRACTION = 0.08      # outline gaps up to 8 % of the panel's shorter side are closed (kiosk.contract.sketch default)
 FINE_MAX_GAP = 11        # at the network grid only gaps up to this are closed; larger ones come from the coarse mask
+QUICK_FELT_TOLERANCE = 1.1  # a quick answer whose texture would be felt more than this much coarser defers tactile
+QUICK_TACTILE = ("at-scale", "always")
 VISUAL_SOURCES = ("model", "reference", "none")
 TACTILE_SOURCES = ("model", "none")
 SKETCH_SOURCES = ("strokes", "reference")
@@ -170,6 +175,7 @@ class PanelPlan:
     refine_grid: tuple[int, int] | None = None  # quick plans: the grid a full-resolution plan would use
     target_scale: float | None = None  # physical scale: grid px per screen px at which texture is felt true
     felt_ratio: float | None = None    # felt / true texture size (1.0 at physical scale; > 1 coarser)
+    deferred: tuple[str, ...] = ()     # quick plans: modalities left to the refinement (the device keeps its frame)
     inputs: NetworkInput | None = field(default=None, repr=False)
     mask: np.ndarray | None = field(default=None, repr=False)
 
@@ -187,7 +193,8 @@ class PanelPlan:
                 "computed_pixels": self.computed_pixels, "naive_pixels": self.naive_pixels,
                 "refine_grid": list(self.refine_grid) if self.refine_grid else None,
                 "target_scale": None if self.target_scale is None else round(self.target_scale, 4),
-                "felt_ratio": None if self.felt_ratio is None else round(self.felt_ratio, 4)}
+                "felt_ratio": None if self.felt_ratio is None else round(self.felt_ratio, 4),
+                "deferred": list(self.deferred)}
 
 
 @dataclass
@@ -380,9 +387,16 @@ class Planner:
     """Plans scenes for the daemon. `cached(key, modality) -> bool` tells what the output cache holds."""
 
     def __init__(self, *, max_resolution: int = 512, preview_max_resolution: int = 256, margin_px: int = 16,
-                 cached: Callable[[str, str], bool] | None = None, panel_pitch_mm: float | None = None):
+                 cached: Callable[[str, str], bool] | None = None, panel_pitch_mm: float | None = None,
+                 quick_tactile: str = "at-scale"):
         """`panel_pitch_mm`: the screen's physical pitch (mm per screen pixel, from the kiosk config's panel);
-        None plans at screen pixels (legacy, the texture's felt size then depends on the panel)."""
+        None plans at screen pixels (legacy, the texture's felt size then depends on the panel).
+        `quick_tactile`: at-scale computes friction in a quick answer only when its grid is at the physical scale
+        (felt at most QUICK_FELT_TOLERANCE coarser) or no refinement would come closer; the refinement brings it
+        otherwise. always: every quick answer carries friction, at whatever scale its grid allows."""
+        if quick_tactile not in QUICK_TACTILE:
+            raise InputError(f"quick_tactile must be one of {', '.join(QUICK_TACTILE)}; got {quick_tactile!r}")
+        self.quick_tactile = quick_tactile
         if panel_pitch_mm is not None and not (isinstance(panel_pitch_mm, (int, float))
                                                and math.isfinite(panel_pitch_mm) and panel_pitch_mm > 0):
             raise InputError(f"panel pitch must be a positive number of mm per pixel; got {panel_pitch_mm!r}")
@@ -419,6 +433,12 @@ class Planner:
                 sketch = SketchInput(sketch.strokes, base=True)
             out.panels.append(self._plan_panel(panel, scene, sketch, bundle, preview, out.quick, out))
         return out
+
+    def _defer_tactile(self, quick: bool, needs: tuple[str, ...], felt_ratio: float, refinable: bool) -> bool:
+        """Leave friction to the refinement? Only in a quick plan that also shows a visual (a tactile-only panel
+        keeps its quick friction), when the quick grid feels the texture too coarse and the refinement's is larger."""
+        return (quick and self.quick_tactile == "at-scale" and "tactile" in needs and len(needs) > 1
+                and refinable and felt_ratio > QUICK_FELT_TOLERANCE)
 
     def _cap(self, bundle: BundleInfo, kind: str, preview: bool) -> tuple[int, int]:
         limit = self.preview_max_resolution if preview else self.max_resolution
@@ -485,6 +505,15 @@ class Planner:
         else:
             grid, scale = physical_grid(extent, target, self._cap(bundle, kind0, preview or quick))
             full_grid, full_scale = physical_grid(extent, target, self._cap(bundle, kind0, False))
+            if self._defer_tactile(quick, needs, target / scale, full_grid != grid):
+                # Felt at the wrong size, and replaced by the refinement before a finger can come back to feel
+                # it: the quick answer shows the garment and the device keeps what it had until the refinement.
+                needs = tuple(m for m in needs if m != "tactile")
+                pp.needs, pp.deferred = needs, ("tactile",)
+                # The refinement computes every modality: its grid (refine_grid, the warning below) stays the
+                # one planned with them.
+                kind0 = choose_graph(needs, bundle.graphs())
+                grid, scale = physical_grid(extent, target, self._cap(bundle, kind0, True))
             if quick:
                 pp.refine_grid = full_grid
             pp.target_scale, pp.felt_ratio = target, target / scale

@@ -22,6 +22,7 @@ from kiosk.config import loader
 from kiosk.contract.errors import KioskError
 from kiosk.contract.graph import GRID_MULTIPLE
 from kiosk.fleet.layout import CHANNELS, KIOSK_ID_RE
+from kiosk.inference.scene import QUICK_TACTILE
 from kiosk.inference.sessions import EXECUTION_MODES, OPENVINO_HINTS, SessionSettings
 from kiosk.contract.panels import DEFAULT_PANEL, KNOWN_PANELS
 
@@ -132,7 +133,9 @@ class InferenceConfig:
     preview_threads: previews while drawing run in a lane of their own with this many threads, beside a running
     refinement instead of queued behind it; 0 runs them in the one main loop, in turn with everything else.
     refine: answer a stroke end first at the preview resolution (visual and friction), then at full resolution (the
-    page asks for the refinement at once). precisions: the graph precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
+    page asks for the refinement at once). quick_tactile: at-scale (default) leaves the friction of a quick answer
+    to the refinement when the quick grid would make the texture felt more than 10 % coarser than the fabric;
+    always sends it anyway (the earlier behaviour). precisions: the graph precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
     kiosk, is refused at load with a clear reason).
     """
 
@@ -146,6 +149,7 @@ class InferenceConfig:
     margin_px: int = 16
     cache_mb: int = 64
     refine: bool = True
+    quick_tactile: str = "at-scale"
     engine: EngineConfig = field(default_factory=EngineConfig)
 
     def __post_init__(self) -> None:
@@ -162,6 +166,8 @@ class InferenceConfig:
                    f"inference.{name} must be a multiple of {GRID_MULTIPLE} from {GRID_MULTIPLE} to 4096")
         _check(self.preview_max_resolution <= self.max_resolution,
                "inference.preview_max_resolution must not exceed inference.max_resolution")
+        _check(self.quick_tactile in QUICK_TACTILE,
+               f"inference.quick_tactile must be one of {', '.join(QUICK_TACTILE)}")
         _check(0 <= self.margin_px <= 512, "inference.margin_px must be from 0 to 512")
         _check(0 <= self.cache_mb <= 4096, "inference.cache_mb must be from 0 to 4096 (MiB of cached outputs)")
 

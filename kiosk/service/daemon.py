@@ -66,7 +66,7 @@ class KioskDaemon:
         self.cache = OutputCache(inf.cache_mb << 20)
         self.planner = Planner(max_resolution=inf.max_resolution, preview_max_resolution=inf.preview_max_resolution,
                                margin_px=inf.margin_px, cached=self.cache.has,
-                               panel_pitch_mm=config.panel.pitch_mm)
+                               panel_pitch_mm=config.panel.pitch_mm, quick_tactile=inf.quick_tactile)
         self.device = DeviceOutput(config.device, display=display, on_error=self._device_error,
                                    on_texture=self._texture_made)
         self.bundle_set = BundleSet(config, self.series, bundle_sources)

@@ -146,6 +146,8 @@ class FrameRenderer:
 
     def _update_device(self, frame: int, req: RenderRequest, results: list[PanelResult]) -> None:
         for r in results:
+            if "tactile" in r.plan.deferred:
+                continue  # a quick answer left friction to the refinement: the device keeps what it has
             if r.status == "ok" and "tactile" in r.plan.needs:
                 if r.friction is not None:
                     self.textures[r.panel] = r.friction

@@ -52,6 +52,15 @@ def render(d: KioskDaemon, strokes=BOX, *, garment="denim-shorts", mode="final",
     return status, *parse_frame(data)
 
 
+def settle(d: KioskDaemon, strokes=BOX, **kw):
+    """A stroke end as the page answers it: the quick answer, then the refinement it asks for (which brings the
+    friction when the quick answer left it out, `inference.quick_tactile`). Returns the last answer."""
+    out = render(d, strokes, **kw)
+    if out[0] == 200 and out[1].get("refine"):
+        out = render(d, strokes, **{**kw, "mode": "refine"})
+    return out
+
+
 def wait_for(cond, timeout: float = 5.0, step: float = 0.02) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:

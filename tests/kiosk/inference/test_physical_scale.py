@@ -102,3 +102,41 @@ def test_quick_answer_may_drop_the_scale_silently_and_refines_to_physical(bundle
         quick = planner.plan(scene, {"main": box(800, 500)}, {"denim-shorts": bundle}, quick=True).panels[0]
     assert quick.grid == (256, 256) and quick.refine_grid == (512, 512) and quick.felt_ratio > 1
     assert not [r for r in caplog.records if r.name == "kiosk.inference.scene"]
+
+
+def _quick(bundle, sketch, *, needs=None, **kw):
+    panel = Panel("main", (0, 0, *SCREEN), "denim-shorts")
+    if needs == "tactile":  # a panel that shows no model visual (as the study's, whose visual is a reference)
+        panel = Panel("main", (0, 0, *SCREEN), "denim-shorts", visual="none")
+    planner = Planner(**{"max_resolution": 512, "preview_max_resolution": 256, "panel_pitch_mm": 0.17, **kw})
+    return planner.plan(Scene((panel,), SCREEN), {"main": sketch}, {"denim-shorts": bundle}, quick=True).panels[0]
+
+
+def test_quick_answer_leaves_friction_felt_too_coarse_to_the_refinement(bundle):
+    far = _quick(bundle, box(800, 500))  # needs 512x512 at physical scale; 256 would feel it ~1.6x coarser
+    assert far.deferred == ("tactile",) and far.needs == ("visual",) and far.graph == "visual"
+    assert far.felt_ratio > 1.1 and far.refine_grid == (512, 512) and far.to_json()["deferred"] == ["tactile"]
+    near = _quick(bundle, box(400, 300))  # fits the 256 px quick grid at physical scale: nothing to wait for
+    assert near.deferred == () and near.felt_ratio == pytest.approx(1.0) and near.graph == "full"
+    always = _quick(bundle, box(800, 500), quick_tactile="always")
+    assert always.deferred == () and always.graph == "full" and always.felt_ratio == pytest.approx(far.felt_ratio)
+    # no refinement would come closer (the full cap is the quick one): the quick answer is final, friction and all
+    capped = _quick(bundle, box(800, 500), max_resolution=256)
+    assert capped.deferred == () and capped.refine_grid == capped.grid and capped.graph == "full"
+
+
+@settings(max_examples=60, deadline=None)
+@given(w=st.floats(60, 1200), h=st.floats(60, 760))
+def test_deferral_happens_exactly_when_the_quick_grid_feels_too_coarse_and_a_refinement_follows(bundle, w, h):
+    p = _quick(bundle, box(w, h))
+    always = _quick(bundle, box(w, h), quick_tactile="always")
+    too_coarse = always.felt_ratio > 1.1 and always.refine_grid != always.grid
+    assert (p.deferred == ("tactile",)) == too_coarse
+    assert ("tactile" in p.needs) != too_coarse and "visual" in p.needs
+
+
+def test_a_tactile_only_panel_keeps_its_quick_friction_and_a_bad_setting_is_refused(bundle):
+    alone = _quick(bundle, box(800, 500), needs="tactile")
+    assert alone.deferred == () and alone.needs == ("tactile",) and alone.felt_ratio > 1.1
+    with pytest.raises(InputError, match="quick_tactile must be one of at-scale, always"):
+        Planner(quick_tactile="sometimes")

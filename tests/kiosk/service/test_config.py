@@ -44,6 +44,8 @@ def test_defaults_need_something_to_serve(tmp_path):
     ({"bundles": ["a"], "inference": {"preview_max_resolution": 1024, "max_resolution": 512}}, "must not exceed"),
     ({"bundles": ["a"], "inference": {"precisions": ["int4"]}}, "precisions"),
     ({"bundles": ["a"], "inference": {"provider": "tpu"}}, "provider"),
+    ({"bundles": ["a"], "inference": {"quick_tactile": "never"}}, "inference.quick_tactile must be one of at-scale"),
+    ({"bundles": ["a"], "inference": {"quick_tactile": 1}}, "inference.quick_tactile"),
     ({"bundles": ["a"], "inference": {"latency_budget_ms": float("nan")}}, "finite number"),
     ({"bundles": ["a"], "server": {"host": "0.0.0.0"}}, "not a loopback address"),
     ({"bundles": ["a"], "server": {"port": 70000}}, "server.port"),
@@ -140,7 +142,7 @@ def test_any_document_gives_a_config_or_a_clear_error(doc):
 @given(section=st.sampled_from(["server", "inference", "health", "store", "debug", "page"]),
        key=st.sampled_from(["port", "threads", "host", "stale_after_s", "allow_unsigned", "max_resolution",
                             "fault_injection", "latency_budget_ms", "cache_mb", "margin_px", "idle_timeout_s",
-                            "tap_max_px", "texts", "auto_feel"]),
+                            "tap_max_px", "texts", "auto_feel", "quick_tactile"]),
        value=scalars)
 def test_mutated_valid_config_gives_a_config_or_a_clear_error(section, key, value):
     doc = {"bundles": ["/a.vtb"], section: {key: value}}

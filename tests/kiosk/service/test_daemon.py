@@ -23,7 +23,7 @@ from kiosk.contract.haptics import friction_map
 from kiosk.bundle.manifest import BundleError
 from kiosk.inference.scene import Panel, Scene, SketchInput
 from tests.kiosk.bundle_factory import base_manifest, make_bundle
-from tests.kiosk.daemon_fixtures import BOX, daemon_config, http, render, start_daemon, wait_for
+from tests.kiosk.daemon_fixtures import BOX, daemon_config, http, render, settle, start_daemon, wait_for
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -52,7 +52,11 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     # Physical scale: the 532x432 px region at 0.170 mm/px (default panel) over the bundle's 0.3 mm/px is 301x245
     # model pixels, rounded up to the graph's 512x256; the quick answer fits 256x256 at a lower scale.
     assert visuals["main"].shape == (256, 256, 4) and meta["plan"]["panels"][0]["refine_grid"] == [512, 256]
-    assert daemon.wait_commit(meta["device_frame"], 5.0).status == "committed"
+    # At 256x256 the texture would be felt 1.19x coarser than the fabric: the quick answer shows the garment and
+    # leaves its friction to the refinement (inference.quick_tactile: at-scale); the device is not touched.
+    quick = meta["plan"]["panels"][0]
+    assert quick["deferred"] == ["tactile"] and quick["graph"] == "visual" and meta["device_frame"] is None
+    assert not device_frame(daemon).any()
     status, meta, visuals = render(daemon, mode="refine")
     assert status == 200 and not meta["refine"]
     (p,) = meta["panels"]
@@ -78,6 +82,19 @@ def test_friction_lands_exactly_under_the_visual(daemon):
     # The visual's alpha is the object mask: opaque inside the outline, transparent outside.
     alpha = visuals["main"][..., 3]
     assert alpha[128, 256] == 255 and alpha[2, 2] == 0
+
+
+def test_quick_tactile_always_sends_the_quick_answers_friction_at_its_coarser_scale(bundle):
+    path, trusted = bundle
+    d = start_daemon([path], trusted, inference={"quick_tactile": "always"})
+    try:
+        status, meta, _ = render(d)
+        quick = meta["plan"]["panels"][0]
+        assert meta["refine"] and quick["deferred"] == [] and quick["graph"] == "full"
+        assert quick["felt_ratio"] == pytest.approx(1.19, abs=0.01)
+        assert d.wait_commit(meta["device_frame"], 5.0).status == "committed" and device_frame(d).any()
+    finally:
+        d.stop()
 
 
 def test_without_refinement_a_stroke_end_is_answered_at_full_resolution(bundle):
@@ -122,21 +139,22 @@ def test_a_new_request_supersedes_queued_previews_and_refinements(daemon):
 
 def test_unchanged_sketch_costs_no_inference_and_undo_hits_the_cache(daemon):
     runs = daemon.series.graph_runs
-    render(daemon)
-    full_runs = runs.value(graph="full")
-    status, meta, _ = render(daemon)
+    total = lambda: sum(runs.value(graph=g) for g in ("full", "visual", "tactile"))  # noqa: E731
+    settle(daemon)  # quick visual, then the refinement's full graph
+    before = total()
+    status, meta, _ = settle(daemon)
     assert meta["plan"]["panels"][0]["graph"] == "none" and meta["plan"]["panels"][0]["reused"] == ["visual",
                                                                                                       "tactile"]
-    assert meta["plan"]["computed_pixels"] == 0 and runs.value(graph="full") == full_runs
-    render(daemon, BOX + [[[400, 300], [600, 500]]])  # a new stroke: computed
-    assert runs.value(graph="full") == full_runs + 1
-    status, meta, _ = render(daemon)  # undo: back to the cached sketch
-    assert meta["plan"]["panels"][0]["reason"] == "all from cache" and runs.value(graph="full") == full_runs + 1
+    assert meta["plan"]["computed_pixels"] == 0 and total() == before
+    settle(daemon, BOX + [[[400, 300], [600, 500]]])  # a new stroke: computed, quick and refined
+    assert total() == before + 2
+    status, meta, _ = settle(daemon)  # undo: back to the cached sketch
+    assert meta["plan"]["panels"][0]["reason"] == "all from cache" and total() == before + 2
     assert http(daemon.server.url + "api/plan")[0] == 200
 
 
 def test_preview_is_visual_only_and_leaves_the_device_alone(daemon):
-    status, meta, _ = render(daemon)
+    status, meta, _ = settle(daemon)
     daemon.wait_commit(meta["device_frame"], 5.0)
     committed = len(daemon.device.emulator.committed)
     status, meta, visuals = render(daemon, BOX + [[[350, 250], [700, 550]]], mode="preview")
@@ -147,7 +165,7 @@ def test_preview_is_visual_only_and_leaves_the_device_alone(daemon):
 
 
 def test_clearing_the_canvas_clears_the_friction(daemon):
-    status, meta, _ = render(daemon)
+    status, meta, _ = settle(daemon)
     daemon.wait_commit(meta["device_frame"], 5.0)
     assert device_frame(daemon).any()
     status, meta, visuals = render(daemon, [])
@@ -157,7 +175,7 @@ def test_clearing_the_canvas_clears_the_friction(daemon):
 
 
 def test_nonfinite_outputs_keep_the_last_good_frame(daemon):
-    status, meta, _ = render(daemon)
+    status, meta, _ = settle(daemon)
     daemon.wait_commit(meta["device_frame"], 5.0)
     good = device_frame(daemon).copy()
     assert daemon.handle_control({"op": "debug.nonfinite", "on": True})["nonfinite"]
@@ -185,22 +203,23 @@ def test_a_poisoned_bundle_never_reaches_screen_or_device(tmp_path):
 
         lb = LoadedBundle(open_bundle(bad, load_trusted_keys(trusted), workdir=tmp_path / "w"))
         d.bundle_set.serving = {**d.bundle_set.serving, lb.garment_id: lb}
-        status, meta, visuals = render(d, garment="poison-coat")
+        status, meta, visuals = settle(d, garment="poison-coat")
         assert meta["panels"][0]["status"] == "kept" and not visuals and meta["device_frame"] is not None
         time.sleep(0.2)
         assert not device_frame(d).any()
-        assert d.series.inference_errors.value(reason="nonfinite") == 1
+        # both answers to the stroke end refused it: the quick one's visual, the refinement's full graph
+        assert d.series.inference_errors.value(reason="nonfinite") == 2
     finally:
         d.stop()
 
 
 def test_device_loss_degrades_to_visual_only_and_recovers(daemon):
-    status, meta, _ = render(daemon)
+    status, meta, _ = settle(daemon)
     daemon.wait_commit(meta["device_frame"], 5.0)
     daemon.handle_control({"op": "debug.unplug"})
     assert wait_for(lambda: not daemon.device.up, 5.0)
     edit = BOX + [[[400, 300], [600, 500]]]
-    status, meta, visuals = render(daemon, edit)
+    status, meta, visuals = settle(daemon, edit)  # the refinement's friction frame meets the unplugged link
     assert status == 200 and meta["panels"][0]["status"] == "ok" and "main" in visuals  # still drawing
     assert any("visual only" in n for n in meta["notices"])
     assert not daemon.health.run().checks["device"].ok
