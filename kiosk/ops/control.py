@@ -280,7 +280,12 @@ def send_control(path: Path, request: dict, timeout_s: float = 10.0) -> dict:
         except OSError as exc:
             raise ControlError(f"cannot reach the control socket {path}: {exc}") from exc
         try:
-            sock.sendall(_encode(request))
+            try:
+                sock.sendall(_encode(request))
+            except (BrokenPipeError, ConnectionResetError):
+                # The daemon answered and closed before reading (a refusal by peer credentials): its answer is
+                # already in our receive buffer, so read it rather than report the pipe.
+                pass
             buf = b""
             while b"\n" not in buf:
                 chunk = sock.recv(65536)

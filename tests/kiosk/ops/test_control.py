@@ -225,3 +225,38 @@ def test_mode_group_and_peer_credentials_restrict_the_socket(open_dir):
         assert out["reply"]["ok"] is False and "permission denied" in out["reply"]["error"]
         out = _as_user(nobody.pw_uid, nobody.pw_gid, [0], call)
         assert out.get("reply") == {"ok": True, "echo": "hi"}, out
+
+
+def test_a_refusal_sent_before_the_request_is_read_still_reaches_the_client(tmp_path, monkeypatch):
+    """The daemon refuses a peer by its credentials before reading its request, then closes. A client whose send
+    comes after that close gets EPIPE; it must still read the refusal waiting in its buffer, not report a broken
+    pipe. The client's send is held back until the server has closed, so the order is forced, not raced."""
+    import kiosk.ops.control as control
+
+    path = tmp_path / "c.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen(1)
+    closed = threading.Event()
+
+    def refuse():
+        conn, _ = listener.accept()
+        conn.sendall(b'{"ok":false,"error":"permission denied: uid 65534 is not in group root"}\n')
+        conn.close()
+        closed.set()
+
+    t = threading.Thread(target=refuse, daemon=True)
+    t.start()
+    encode = control._encode
+
+    def late_encode(request):
+        assert closed.wait(10)  # the server has answered and closed before the client sends anything
+        return encode(request)
+
+    monkeypatch.setattr(control, "_encode", late_encode)
+    try:
+        out = send_control(path, {"op": "echo", "payload": "x" * 200_000}, timeout_s=10)
+    finally:
+        listener.close()
+        t.join(5)
+    assert out == {"ok": False, "error": "permission denied: uid 65534 is not in group root"}
