@@ -393,7 +393,8 @@ class Planner:
         None plans at screen pixels (legacy, the texture's felt size then depends on the panel).
         `quick_tactile`: at-scale computes friction in a quick answer only when its grid is at the physical scale
         (felt at most QUICK_FELT_TOLERANCE coarser) or no refinement would come closer; the refinement brings it
-        otherwise. always: every quick answer carries friction, at whatever scale its grid allows."""
+        otherwise. always: every quick answer carries friction, at whatever scale its grid allows. Without a panel
+        pitch there is no physical scale to miss, and every quick answer carries friction."""
         if quick_tactile not in QUICK_TACTILE:
             raise InputError(f"quick_tactile must be one of {', '.join(QUICK_TACTILE)}; got {quick_tactile!r}")
         self.quick_tactile = quick_tactile

@@ -85,6 +85,7 @@ class FrameRenderer:
         self.frame_ids = itertools.count(1)
         self.last_plan: dict | None = None
         self.textures: dict[str, FrictionSource] = {}   # panel -> the friction source on the device
+        self.texture_garment: dict[str, str] = {}       # panel -> the garment (bundle id) that texture belongs to
         self._notices: dict[str, str] = {}
 
     def notices(self) -> list[str]:
@@ -123,7 +124,8 @@ class FrameRenderer:
         self.metrics.pixels.inc(plan.computed_pixels, plan="planned")
         self.metrics.pixels.inc(plan.naive_pixels, plan="naive")
         device_frame = None
-        if not plan.preview and any("tactile" in p.plan.needs or p.status == "empty" for p in results):
+        if not plan.preview and any("tactile" in p.plan.needs or p.status == "empty" or self._stale(p)
+                                    for p in results):
             device_frame = frame
             self._update_device(frame, req, results)
         # Notices: inference trouble is per job; the device's state is live.
@@ -144,13 +146,23 @@ class FrameRenderer:
         return FrameResult(frame, req.mode, plan, results, timings, received_at, ready, device_frame,
                            self.notices())
 
+    def _stale(self, r: PanelResult) -> bool:
+        """A quick answer left this panel's friction to the refinement, but the device holds another garment's."""
+        return "tactile" in r.plan.deferred and r.panel in self.textures \
+            and self.texture_garment.get(r.panel) != r.plan.bundle
+
     def _update_device(self, frame: int, req: RenderRequest, results: list[PanelResult]) -> None:
         for r in results:
             if "tactile" in r.plan.deferred:
-                continue  # a quick answer left friction to the refinement: the device keeps what it has
+                # A quick answer left friction to the refinement: the device keeps the garment's last frame (an
+                # edit changes little of it), but never another garment's under this one's picture.
+                if self._stale(r):
+                    self.textures.pop(r.panel, None)
+                continue
             if r.status == "ok" and "tactile" in r.plan.needs:
                 if r.friction is not None:
                     self.textures[r.panel] = r.friction
+                    self.texture_garment[r.panel] = r.plan.bundle
                 else:
                     self.textures.pop(r.panel, None)
             elif r.status == "empty" or "tactile" not in r.plan.needs:
@@ -158,6 +170,7 @@ class FrameRenderer:
         shown = {p.id for p in req.scene.panels}
         for gone in [k for k in self.textures if k not in shown]:
             del self.textures[gone]
+        self.texture_garment = {k: v for k, v in self.texture_garment.items() if k in self.textures}
         self.device.submit(frame, [self.textures[p.id] for p in req.scene.panels if p.id in self.textures])
 
     def _take_reused(self, plan: Plan) -> dict[tuple[str, str], np.ndarray] | None:

@@ -97,6 +97,31 @@ def test_quick_tactile_always_sends_the_quick_answers_friction_at_its_coarser_sc
         d.stop()
 
 
+def test_a_deferring_quick_answer_keeps_the_garments_friction_but_never_anothers(tmp_path):
+    a, trusted = make_bundle(tmp_path, name="a.vtb")
+    b, _ = make_bundle(tmp_path, name="b.vtb", manifest=base_manifest(garment_id="knit-jacket",
+                                                                      display_name="Knit jacket"))
+    d = start_daemon([a, b], trusted)
+    try:
+        status, meta, _ = settle(d)  # denim: quick visual, then the refinement's friction
+        assert d.wait_commit(meta["device_frame"], 5.0).status == "committed"
+        denim = device_frame(d).copy()
+        assert denim.any()
+        # an edit of the same garment: the quick answer defers, the device keeps the denim frame untouched
+        status, meta, _ = render(d, BOX + [[[400, 300], [600, 500]]])
+        assert meta["plan"]["panels"][0]["deferred"] == ["tactile"] and meta["device_frame"] is None
+        np.testing.assert_array_equal(device_frame(d), denim)
+        # another garment on the same panel: its quick answer defers too, but denim's friction must not stay under
+        # the knit's picture: natural friction until the knit's refinement arrives
+        status, meta, _ = render(d, garment="knit-jacket")
+        assert meta["plan"]["panels"][0]["deferred"] == ["tactile"] and meta["device_frame"] is not None
+        assert d.wait_commit(meta["device_frame"], 5.0).status == "committed" and not device_frame(d).any()
+        status, meta, _ = render(d, garment="knit-jacket", mode="refine")
+        assert d.wait_commit(meta["device_frame"], 5.0).status == "committed" and device_frame(d).any()
+    finally:
+        d.stop()
+
+
 def test_without_refinement_a_stroke_end_is_answered_at_full_resolution(bundle):
     path, trusted = bundle
     d = start_daemon([path], trusted, inference={"refine": False})
