@@ -21,8 +21,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from kiosk.bundle.archive import Bundle
+from kiosk.contract.accuracy import IDENTICAL_DB, deviation
 from kiosk.contract.graph import feeds, unpack
-from kiosk.contract.haptics import friction_map
 from kiosk.contract.sketch import letterbox, network_input, object_mask
 from kiosk.inference.backends import available, open_graph
 from kiosk.inference.sessions import SessionSettings
@@ -30,7 +30,6 @@ from kiosk.inference.cpu import describe
 
 DEFAULT_BOUND_LEVELS = 0.5      # friction levels, for a bundle that states no error at its precision
 DEFAULT_VISUAL_LEVELS = 0.5     # 8-bit colour levels of mean difference, likewise
-LEVELS_PER_UNIT = 127.5         # 8-bit colour levels per unit of the visual's tanh output
 
 
 @dataclass(frozen=True)
@@ -113,32 +112,6 @@ def _feed(bundle: Bundle, grid: tuple[int, int]) -> dict[str, np.ndarray]:
     return feeds(np.zeros((1, 1, h, w), np.float32), np.ones((1, 1, h, w), np.float32))
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR of two images in [-1, 1]; identical images give 99 dB (no division by a zero error)."""
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 99.0 if mse <= 1e-12 else float(10 * np.log10(4.0 / mse))
-
-
-def deviation(bundle: Bundle, outputs: list[str], ref: list[np.ndarray], got: list[np.ndarray],
-              mask: np.ndarray) -> dict[str, float]:
-    """How far one engine's outputs are from ONNX Runtime's on one graph, in the units of `graph_bounds`."""
-    m = bundle.manifest
-    out: dict[str, float] = {}
-    for name, r, g in zip(outputs, ref, got):
-        if name == "tactile":
-            fr, fg = (friction_map(t[0, 0], t[0, 1], m.friction_scale, normalization=m.friction_normalization,
-                                   constants=m.friction_constants).astype(np.int16) for t in (r, g))
-            diff = np.abs(fr - fg)
-            out["friction_mae_levels"] = float(np.mean(diff))
-            inside = np.asarray(mask).reshape(diff.shape) > 0.5
-            if inside.any():  # a blank feed has no garment to state an error over
-                out["friction_mae_garment_levels"] = float(np.mean(diff[inside]))
-        elif name == "visual":
-            out["visual_psnr_db"] = _psnr(r, g)
-            out["visual_mae_levels"] = LEVELS_PER_UNIT * float(np.mean(np.abs(r - g)))
-    return out
-
-
 def _breaches(dev: dict[str, float], bounds: dict[str, float]) -> list[str]:
     """The bounds `dev` breaks, worded; PSNR must reach its bound, every other figure stay within its own."""
     bad = []
@@ -182,7 +155,10 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
                 if engine == "onnxruntime":
                     reference[kind] = outs
                     continue
-                dev = deviation(bundle, spec.outputs, reference[kind], outs, unpack(inputs[kind])[1])
+                m = bundle.manifest
+                dev = deviation(dict(zip(spec.outputs, reference[kind])), dict(zip(spec.outputs, outs)),
+                                unpack(inputs[kind])[1], m.friction_scale, normalization=m.friction_normalization,
+                                constants=m.friction_constants)
                 breaches += [f"{kind}: {b}" for b in _breaches(dev, bounds[kind])]
                 for key, v in dev.items():
                     worse = min if key == "visual_psnr_db" else max
@@ -195,7 +171,7 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
         if engine == "onnxruntime":  # the reference: no deviation from itself, in the figures the others get
             outputs = {o for k in kinds for o in bundle.manifest.graph(k).outputs}
             worst = ({"friction_mae_levels": 0.0, "friction_mae_garment_levels": 0.0} if "tactile" in outputs
-                     else {}) | ({"visual_psnr_db": 99.0} if "visual" in outputs else {})
+                     else {}) | ({"visual_psnr_db": IDENTICAL_DB} if "visual" in outputs else {})
 
         def fig(key: str) -> float | None:
             return float(f"{worst[key]:.4g}") if key in worst else None
