@@ -135,8 +135,9 @@ class InferenceConfig:
     refine: answer a stroke end first at the preview resolution (visual and friction), then at full resolution (the
     page asks for the refinement at once). quick_tactile: at-scale (default) leaves the friction of a quick answer
     to the refinement when the quick grid would make the texture felt more than 10 % coarser than the fabric;
-    always sends it anyway (the earlier behaviour). precisions: the graph precisions this kiosk runs (a bundle carries one precision per graph; one with another, e.g. fp16 on a CPU-only
-    kiosk, is refused at load with a clear reason).
+    always sends it anyway (the earlier behaviour). precisions: the graph precisions this kiosk runs (a bundle
+    carries one precision per graph; one with another, e.g. fp16 on a CPU-only kiosk, is refused at load with a
+    clear reason).
     """
 
     threads: int = 2
