@@ -18,7 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("exporter.cli", "export a trained run as a signed ONNX bundle"),
     "keys": ("exporter.keys_cli", "generate an operator signing key pair"),
     "bundle": ("kiosk.bundle.cli", "inspect, verify, install, activate and roll back bundles"),
-    "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e, haptics, threads)"),
+    "bench": ("vtkiosk.bench_cli", "speed-against-error benchmarks (infer, e2e, e2e-compare, haptics, threads)"),
     "serve": ("kiosk.service.cli", "run the kiosk daemon"),
     "fleet": ("kiosk.fleet.cli", "publish bundles to a TUF update repository; sync a kiosk from it"),
     "device": ("firmware_bridge.cli", "probe, emulate and benchmark the haptic bridge"),

@@ -5,7 +5,7 @@ These machines are noisy, so a setting is compared with another measured in the 
 A, B, A, B) and the figure quoted is the ratio. The interval resamples each setting's stroke ends independently
 (the two settings replay the same sessions, but not at the same moments of load).
 
-    python -m kiosk.bench.e2e_ratio --a A1.json A2.json --b B1.json B2.json [--json OUT] [--plot PNG]
+    vtkiosk bench e2e-compare --a A1.json A2.json --b B1.json B2.json [--json OUT] [--plot PNG]
 """
 from __future__ import annotations
 
@@ -95,15 +95,16 @@ def plot(a_paths: list[Path], b_paths: list[Path], names: tuple[str, str], out: 
         ax.set_title(label.replace("stroke end -> ", ""), fontsize=9)
         ax.set_xlabel("ms after the stroke end")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:  # a measure neither setting had draws an empty panel
+            ax.legend(fontsize=7, loc="lower right")
     axes[0].set_ylabel("share of stroke ends")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m kiosk.bench.e2e_ratio", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = "vtkiosk bench e2e-compare") -> int:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--a", type=Path, nargs="+", required=True, help="bench e2e JSON files of setting A")
     ap.add_argument("--b", type=Path, nargs="+", required=True, help="bench e2e JSON files of setting B")
     ap.add_argument("--names", nargs=2, default=("A", "B"), help="the two settings' names in the table")

@@ -55,3 +55,15 @@ def test_command_prints_a_table_writes_json_and_refuses_a_bad_file(tmp_path, cap
     assert main(["--a", str(bad), "--b", str(b)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "not a `vtkiosk bench e2e --json` file" in err
+
+
+def test_it_is_a_vtkiosk_bench_subcommand(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+    a = _run(tmp_path / "a.json", [10, 12], [20, 22])
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.run([sys.executable, "-m", "vtkiosk", "bench", "e2e-compare", "--a", str(a), "--b", str(a)],
+                          cwd=root, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "| stroke end -> visual available | 2 / 2 | 11.0 | 11.0 | 1.00" in proc.stdout
