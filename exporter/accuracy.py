@@ -4,7 +4,8 @@ exporter's held-out sketches.
 
 The per-input figures are `kiosk.contract.accuracy.deviation`, the same definition `engine: auto` holds another
 engine to; the friction error is stated over the whole grid (`friction_mae_levels`, the figure export bounds) and
-over the garment alone (`friction_mae_garment_levels`, what a finger on the garment feels)."""
+over the garment alone (`friction_mae_garment_levels`, what a finger on the garment feels), with the share of the
+garment's pixels a just-noticeable step or more off (`friction_felt_garment_fraction`)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -35,7 +36,7 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
                     inputs: Sequence[NetworkInput], friction_scale: float, *, normalization: str = "calibrated",
                     constants: Mapping[str, float] | None = None) -> dict[str, float]:
     """Like `compare_sessions` with the reference outputs given; `test` is anything with ORT's `run(names, feed)`."""
-    vis, tac, fric, fric_in, fric_max = [], [], [], [], 0.0
+    vis, tac, fric, fric_in, felt, fric_max = [], [], [], [], [], 0.0
     for a, x in zip(reference, inputs):
         b = dict(zip(outputs, test.run(outputs, feeds(x.sketch, x.mask))))
         d = deviation(a, b, x.mask, friction_scale, normalization=normalization, constants=constants)
@@ -46,6 +47,7 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
             fric.append(d["friction_mae_levels"])
             if "friction_mae_garment_levels" in d:  # a sketch without a garment has no garment error to state
                 fric_in.append(d["friction_mae_garment_levels"])
+                felt.append(d["friction_felt_garment_fraction"])
             fric_max = max(fric_max, d["friction_max_levels"])
     out: dict[str, float] = {}
     if vis:
@@ -55,5 +57,6 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
         out["friction_mae_levels"] = float(np.mean(fric))
         if fric_in:
             out["friction_mae_garment_levels"] = float(np.mean(fric_in))
+            out["friction_felt_garment_fraction"] = float(np.mean(felt))
         out["friction_max_levels"] = fric_max
     return out

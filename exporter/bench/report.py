@@ -13,7 +13,7 @@ COLUMNS = [("setting", "setting", "{}"), ("size", "grid", "{}"), ("graph", "grap
            ("peak_rss_mb", "peak RSS MiB", "{:.0f}"), ("gmac", "GMAC", "{:.2f}"), ("graph_bytes", "graph MB", "{:.2f}"),
            ("visual_psnr_db", "PSNR dB", "{:.1f}"), ("friction_mae_levels", "friction MAE", "{:.2f}"),
            ("friction_mae_garment_levels", "in garment", "{:.2f}"), ("friction_max_levels", "friction max", "{:.0f}"),
-           ("full_angle_deg", "GT angle deg", "{:.2f}"),
+           ("friction_felt_garment_fraction", "felt px %", "{:.1f}"), ("full_angle_deg", "GT angle deg", "{:.2f}"),
            ("full_friction_mae", "GT friction MAE", "{:.2f}")]
 TEXT_COLUMNS = 6
 
@@ -26,6 +26,8 @@ def _cell(row: dict, key: str, fmt: str) -> str:
         return f"{v}*"
     if key == "graph_bytes":
         v = v / 1e6
+    if key == "friction_felt_garment_fraction":   # share of garment pixels a just-noticeable step off, in per cent
+        v = 100 * v
     if key == "engine" and v == "onnxruntime" and row.get("provider") not in (None, "CPUExecutionProvider"):
         return f"onnxruntime {row['provider']}"
     if key == "engine" and v == "torch":

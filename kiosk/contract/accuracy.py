@@ -14,7 +14,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from kiosk.contract.haptics import friction_map
+from kiosk.contract.haptics import JND_RATIO, THRESHOLD_LEVEL, friction_map, jnd_steps
 
 LEVELS_PER_UNIT = 127.5  # 8-bit colour levels per unit of the visual's tanh output
 IDENTICAL_DB = 99.0      # the PSNR stated for identical images (no division by a zero error)
@@ -33,6 +33,12 @@ def deviation(ref: Mapping[str, np.ndarray], got: Mapping[str, np.ndarray], mask
 
     Friction maps use the bundle's own mapping (`friction_scale`, `normalization`, `constants`): the error is in the
     levels the finger gets. A mask with no garment states no garment figure rather than dividing by zero.
+
+    `friction_felt_garment_fraction` is the share of garment pixels whose two levels are a just-noticeable step or
+    more apart (`jnd_steps`, with the bundle's threshold and ratio where it states them). The mean hides where the
+    error sits and the maximum is set by one pixel (a seam's edge moved by a pixel is 255 levels there); this says
+    how much of the garment a finger could tell apart, pixel by pixel. A fingertip spans many model pixels, so it
+    is an upper bound on what is felt.
     """
     out: dict[str, float] = {}
     if "visual" in ref:
@@ -49,5 +55,9 @@ def deviation(ref: Mapping[str, np.ndarray], got: Mapping[str, np.ndarray], mask
         inside = np.asarray(mask).reshape(diff.shape) > 0.5
         if inside.any():
             out["friction_mae_garment_levels"] = float(np.mean(diff[inside]))
+            k = constants or {}
+            steps = [jnd_steps(f[inside], threshold_level=k.get("threshold_level", THRESHOLD_LEVEL),
+                               jnd_ratio=k.get("jnd_ratio", JND_RATIO)) for f in (fa, fb)]
+            out["friction_felt_garment_fraction"] = float(np.mean(np.abs(steps[0] - steps[1]) >= 1.0))
         out["friction_max_levels"] = float(diff.max())
     return out

@@ -60,6 +60,7 @@ def test_bench_fp32_bundle_with_run(fp32_bundle, run_dir, tmp_path):
         assert 0 < r["base_rss_mb"] < r["peak_rss_mb"]
         for key in ("tactile_mae", "friction_mae_levels", "friction_max_levels", "full_angle_deg"):
             assert math.isfinite(r[key]) and r[key] >= 0
+        assert 0.0 <= r["friction_felt_garment_fraction"] <= 1.0
         assert (r["speedup_vs_torch"] is None) == (r["engine"] == "torch")
         assert (r["graph_bytes"] is None) == (r["engine"] == "torch") and r["gmac"] > 0
     native = {r["gmac"] for r in timed if r["form"] == "native"}
@@ -67,6 +68,7 @@ def test_bench_fp32_bundle_with_run(fp32_bundle, run_dir, tmp_path):
     assert len(native) == 1 and len(rewritten) == 1 and 1.5 < rewritten.pop() / native.pop() < 2.5
     ref = next(r for r in timed if r["source"] == "bundle" and r["engine"] == "onnxruntime")
     assert ref["tactile_mae"] == 0.0 and ref["friction_mae_levels"] == 0.0 and ref["visual_psnr_db"] == 99.0
+    assert ref["friction_felt_garment_fraction"] == 0.0 and "felt px %" in proc.stdout
     ov = next(r for r in timed if r["source"] == "bundle" and r["engine"] == "openvino")
     assert ov["friction_mae_levels"] < 0.1  # same fp32 graph in another engine: rounding only
     eager = next(r for r in timed if r["engine"] == "torch")

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kiosk.contract.accuracy import IDENTICAL_DB, LEVELS_PER_UNIT, deviation, psnr
-from kiosk.contract.haptics import friction_map
+from kiosk.contract.haptics import JND_RATIO, friction_map
 
 SCALE = 0.05
 
@@ -28,6 +28,28 @@ def test_friction_error_is_in_friction_levels_over_grid_and_garment():
     assert d["friction_mae_garment_levels"] == pytest.approx(4 * d["friction_mae_levels"])
     assert d["friction_mae_levels"] > 1.0  # in friction levels, not 127.5 x the slope difference
     assert d["tactile_mae"] == pytest.approx(np.abs(ref.astype(np.float64) - got).mean())
+
+
+def test_felt_fraction_counts_pixels_a_step_apart_not_a_moved_edge_s_size():
+    mask = np.zeros((1, 1, 64, 64), np.float32)
+    mask[..., 16:48, 16:48] = 1.0
+    ref = np.zeros((1, 2, 64, 64), np.float32)
+    ref[0, 0, 16:48, 16:48] = 0.04           # the fabric: a gentle slope, about 28 levels
+    ref[0, 0, 16:48, 30] = 1.0               # a seam: saturated
+    moved = ref.copy()
+    moved[0, 0, 16:48, 30], moved[0, 0, 16:48, 31] = 0.04, 1.0   # the seam one pixel to the right
+    d = deviation({"tactile": ref}, {"tactile": moved}, mask, SCALE)
+    assert d["friction_max_levels"] == 255 - friction_map(ref[0, 0], ref[0, 1], SCALE)[20, 20]
+    assert d["friction_felt_garment_fraction"] == pytest.approx(2 / 32)   # two of the garment's 32 columns
+    level = float(friction_map(ref[0, 0], ref[0, 1], SCALE)[20, 20])
+    for gain, felt in ((1.05, 0.0), (2.0, 1.0)):   # a 5 % steeper fabric is below a step; twice as steep is not
+        steeper = ref.copy()
+        steeper[0, 0, 16:48, 16:48] *= gain
+        steeper[0, 0, 16:48, 30] = 1.0
+        got = float(friction_map(steeper[0, 0], steeper[0, 1], SCALE)[20, 20])
+        assert (got / level >= JND_RATIO) == bool(felt)
+        assert deviation({"tactile": ref}, {"tactile": steeper}, mask, SCALE)["friction_felt_garment_fraction"] \
+            == pytest.approx(felt * 31 / 32)   # the seam column is saturated in both
 
 
 def test_identical_outputs_and_an_empty_garment():
@@ -52,7 +74,11 @@ def test_deviation_is_symmetric_finite_and_never_divides_by_zero(seed, side, gai
     b = {"visual": got[:, :1], "tactile": got}
     one, two = deviation(a, b, mask, SCALE), deviation(b, a, mask, SCALE)
     assert one == two and all(np.isfinite(v) and v >= 0 for v in one.values())
-    assert ("friction_mae_garment_levels" in one) == bool(mask.any())
+    assert ("friction_mae_garment_levels" in one) == ("friction_felt_garment_fraction" in one) == bool(mask.any())
+    if mask.any():
+        assert 0.0 <= one["friction_felt_garment_fraction"] <= 1.0
+        if gain == 1.0:
+            assert one["friction_felt_garment_fraction"] == 0.0
     if mask.any():  # outside the garment both are 0, so the grid figure is the garment's diluted, never larger
         assert one["friction_mae_levels"] <= one["friction_mae_garment_levels"] + 1e-9
     assert one["friction_max_levels"] >= one["friction_mae_levels"]
