@@ -9,7 +9,8 @@
 # Environment: DATA, GARMENTS, CROP (768: the largest grid multiple a 900 px padded frame holds), DEVICE (cuda),
 # PY (python3), WORK (/tmp/gpu_table), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
 # MAX_STEPS (20000), METHODS (the three) and STEPS (skips the calibration), EXTRA (more `--set`s for every run),
-# PACK (weights sheets infer: what to pack beside the table and log). Every stage has its own deadline inside
+# PACK (weights sheets infer: what to pack beside the table and log), SCORE (1; 0 skips the on-device scoring: the
+# packed fp16 weights are scored elsewhere with `vtkiosk eval --compare`). Every stage has its own deadline inside
 # BUDGET_S (default 540), so the packing always runs.
 set -u
 START=$(date +%s)
@@ -94,15 +95,17 @@ print(t['step'], 'steps', t['seconds_per_step'], 's/step', 'stopped early' if t[
 done; done
 
 # 3. scores: each run scored in its own process (cached beside the run), then one table from the caches
-for g in $GARMENTS; do for m in $METHODS; do
+[ "${SCORE:-1}" = 1 ] && for g in $GARMENTS; do for m in $METHODS; do
   timeout "$(left "$EVAL_END")" $PY -m vtkiosk eval --compare "$W/runs/$g/$m" --which latest --no-swap \
     --out "$W/score/$g-$m" > "$W/runs/$g/$m.eval.log" 2>&1 &
 done; done
 wait
-ARGS=(); for m in $METHODS; do for g in $GARMENTS; do ARGS+=("$W/runs/$g/$m"); done; done
-timeout "$(left "$TABLE_END")" $PY -m vtkiosk eval --compare "${ARGS[@]}" --which latest --ours ours --no-swap \
-  --out "$W/table" > "$W/table.log" 2>&1
-log "table: exit $? ($(ls "$W/table" 2>/dev/null | tr '\n' ' '))"
+if [ "${SCORE:-1}" = 1 ]; then
+  ARGS=(); for m in $METHODS; do for g in $GARMENTS; do ARGS+=("$W/runs/$g/$m"); done; done
+  timeout "$(left "$TABLE_END")" $PY -m vtkiosk eval --compare "${ARGS[@]}" --which latest --ours ours --no-swap \
+    --out "$W/table" > "$W/table.log" 2>&1
+  log "table: exit $? ($(ls "$W/table" 2>/dev/null | tr '\n' ' '))"
+fi
 
 # 4. the generator's inference time at the paper's 1536 px, beside the paper's 0.19 s
 [[ " $PACK " == *" infer "* ]] && timeout 25 $PY scripts/gpu_infer_time.py --run "$W/runs/DenimShorts/ours" --out "$OUT/gpu_infer.json" --repeats 20 \
@@ -121,8 +124,10 @@ for ck_path in w.glob("runs/*/*/checkpoints/latest.pt"):
     out.mkdir(exist_ok=True)
     torch.save(ck, out / "latest.pt")
 EOF
+mkdir -p "$W/table"
 tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples --exclude='sheet_*' table runs
-[[ " $PACK " == *" sheets "* ]] && tar -C "$W" -cf "$OUT/sheets.tar" $(cd "$W" && ls table/sheet_* 2>/dev/null)
+SHEETS=$(cd "$W" && ls table/sheet_* 2>/dev/null)
+[[ " $PACK " == *" sheets "* ]] && [ -n "$SHEETS" ] && tar -C "$W" -cf "$OUT/sheets.tar" $SHEETS
 [[ " $PACK " == *" weights "* ]] && for m in $METHODS; do
   tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
 done

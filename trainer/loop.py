@@ -81,10 +81,6 @@ class Trainer:
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
         self.method.attach_ema(cfg.train.ema)
-        if self.device.type == "cuda" and getattr(self.method, "tactile_gan", False) and cfg.loss.tactile_r1 > 0:
-            log.warning("%s on %s: in every measured GPU run the tactile D's R1 term grew to ~1e5 and the tactile "
-                        "output fell behind the same recipe on the CPU (docs/training.md, 'On a GPU'); check the "
-                        "run's d_tactile_r1 curve, or run scripts/gpu_r1_check.py first", cfg.method, self.device)
         self.val = self.data.eval_set("val").to(self.device)
         self.step = 0
         self.history: list[dict] = []

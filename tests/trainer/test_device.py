@@ -118,10 +118,16 @@ def test_the_r1_check_agrees_with_itself_on_the_cpu(tmp_path):
     out = tmp_path / "r1.json"
     subprocess.run([sys.executable, str(root / "scripts" / "gpu_r1_check.py"), "--devices", "cpu", "--patches", "24",
                     "--out", str(out)], check=True, cwd=root, capture_output=True, timeout=300)
-    rows = json.loads(out.read_text())["rows"]
-    assert {(r["dtype"], r["diffaug"]) for r in rows} == {("float64", "off"), ("float32", "off"),
-                                                         ("float64", "color,translation,cutout"),
-                                                         ("float32", "color,translation,cutout")}
+    doc = json.loads(out.read_text())
+    rows = doc["rows"]
+    policies = {"off", "color", "translation", "cutout", "color,translation,cutout"}
+    assert {(r["dtype"], r["diffaug"]) for r in rows} == {(d, p) for d in ("float64", "float32") for p in policies}
     for r in rows:
         assert np.isfinite(r["r1"]) and r["r1"] > 0
         assert r["r1_rel_diff"] < 1e-4 and r["grad_rel_diff"] < 1e-2, r
+    # the per-operation table: on the CPU a channels-last input changes nothing beyond float64's rounding (on an
+    # H100 avg_pool2d's gradient did not survive it: docs/training.md, "On a GPU")
+    ops = doc["channels_last_ops"]
+    assert {r["op"] for r in ops} == {"conv2d", "batch_norm", "leaky_relu", "avg_pool2d"}
+    for r in ops:
+        assert r["out_rel_diff"] < 1e-12 and r["r1_rel_diff"] < 1e-8 and r["grad_rel_diff"] < 1e-7, r

@@ -123,6 +123,29 @@ def test_tactile_discriminator_handles_32px_patches_at_every_scale():
     assert len(out) == 3 and all(o[-1].shape[0] == 4 and o[-1].shape[1] == 1 and o[-1].numel() >= 4 for o in out)
 
 
+def test_discriminator_pools_the_standard_layout_whatever_it_is_given(monkeypatch):
+    """CUDA's avg_pool2d got R1's double backward wrong on channels-last inputs (docs/training.md, "On a GPU"), so
+    D hands its pooling a plain NCHW tensor; the scores do not depend on the input's layout."""
+    import trainer.models.discriminators as disc
+    seen = []
+    pool = disc.F.avg_pool2d
+
+    def checked(x, *args, **kwargs):
+        seen.append(x.is_contiguous())
+        return pool(x, *args, **kwargs)
+
+    monkeypatch.setattr(disc.F, "avg_pool2d", checked)
+    torch.manual_seed(0)
+    d = MultiScaleD(in_ch=7, ndf=8, n_layers=3, num_D=3, min_input=32).double()
+    x = torch.randn(6, 7, 32, 32, dtype=torch.float64)
+    plain = d(x)
+    seen.clear()
+    cl = d(x.to(memory_format=torch.channels_last))
+    assert seen == [True, True]
+    for a, b in zip(plain, cl):
+        assert torch.allclose(a[-1], b[-1], rtol=0, atol=1e-12)
+
+
 def test_tactile_graph_exports_to_onnx_with_dynamic_size(tmp_path):
     """The exporter's path: traced at 256 px, run by ONNX Runtime at 512x256, same numbers as torch."""
     import onnxruntime as ort

@@ -63,6 +63,10 @@ class MultiScaleD(nn.Module):
     def forward(self, x: torch.Tensor) -> list[list[torch.Tensor]]:
         assert x.dim() == 4 and min(x.shape[-2:]) >= self.min_input, \
             f"expected (N, C, H, W) with H, W >= {self.min_input}; got {tuple(x.shape)}"
+        # Standard layout first: CUDA's avg_pool2d (torch 2.11, H100) differentiates a channels-last input wrongly
+        # under create_graph (R1's double backward), which made the tactile D diverge on GPUs (docs/training.md,
+        # "On a GPU"); forward values were right, so nothing but R1 showed it.
+        x = x.contiguous()
         out = []
         for k, d in enumerate(self.scales):
             if k:

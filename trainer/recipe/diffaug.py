@@ -39,16 +39,20 @@ def _color(x: torch.Tensor, rgb: slice, g: torch.Generator) -> torch.Tensor:
 
 
 def _translation(x: torch.Tensor, g: torch.Generator, ratio: float = 0.125) -> torch.Tensor:
-    n, _, h, w = x.shape
+    n, c, h, w = x.shape
     sh, sw = max(1, int(h * ratio + 0.5)), max(1, int(w * ratio + 0.5))
     ty = torch.randint(-sh, sh + 1, (n,), generator=g).to(x.device)
     tx = torch.randint(-sw, sw + 1, (n,), generator=g).to(x.device)
     padded = F.pad(x, (sw, sw, sh, sh))
-    rows = (torch.arange(h, device=x.device)[None, :] - ty[:, None] + sh).clamp(0, h + 2 * sh - 1)
-    cols = (torch.arange(w, device=x.device)[None, :] - tx[:, None] + sw).clamp(0, w + 2 * sw - 1)
-    idx_n = torch.arange(n, device=x.device)[:, None, None]
-    out = padded.permute(0, 2, 3, 1)[idx_n, rows[:, :, None], cols[:, None, :]]
-    return out.permute(0, 3, 1, 2)
+    hp, wp = h + 2 * sh, w + 2 * sw
+    rows = (torch.arange(h, device=x.device)[None, :] - ty[:, None] + sh).clamp(0, hp - 1)
+    cols = (torch.arange(w, device=x.device)[None, :] - tx[:, None] + sw).clamp(0, wp - 1)
+    # A gather over the flattened plane returns the standard layout. The earlier advanced indexing returned a
+    # channels-last view, which CUDA's avg_pool2d differentiates wrongly under R1's double backward: the tactile D
+    # diverged on every GPU run (docs/training.md, "On a GPU"; MultiScaleD now also makes its input contiguous).
+    flat = (rows[:, :, None] * wp + cols[:, None, :]).reshape(n, 1, h * w)
+    out = padded.reshape(n, c, hp * wp).gather(2, flat.expand(n, c, h * w).contiguous())
+    return out.reshape(n, c, h, w)
 
 
 def _cutout(x: torch.Tensor, g: torch.Generator, ratio: float = 0.5) -> torch.Tensor:

@@ -13,7 +13,7 @@ from trainer.checkpoint import CheckpointError, load_generator
 from trainer.config import ConfigError, load_config
 from trainer.data.synthetic import generate_dataset
 from trainer.loop import Trainer
-from trainer.recipe.diffaug import DiffAugment, parse_policy
+from trainer.recipe.diffaug import DiffAugment, _translation, parse_policy
 from trainer.recipe.ema import EMA
 from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.recipe.texture import TextureStatsLoss
@@ -68,6 +68,30 @@ def test_diffaug_colour_touches_only_rgb_and_empty_policy_is_identity():
     assert not off.active and torch.equal(off(x)[0], x)
     with pytest.raises(ValueError, match="unknown DiffAugment op"):
         parse_policy("color,flip")
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 4), c=st.integers(1, 7), h=st.integers(1, 20), w=st.integers(1, 20), seed=st.integers(0, 999))
+def test_translation_is_a_zero_filled_shift_in_the_standard_layout(n, c, h, w, seed):
+    """Each sample moves by its own integer offset, vacated pixels are 0, and the result is a plain NCHW tensor: the
+    channels-last view the earlier indexing returned is what CUDA's avg_pool2d differentiated wrongly under R1."""
+    x = torch.randn(n, c, h, w, dtype=torch.float64, requires_grad=True)
+    y = _translation(x, torch.Generator().manual_seed(seed))
+    assert y.shape == x.shape and y.is_contiguous()
+    g = torch.Generator().manual_seed(seed)          # the same draws, in the same order
+    sh, sw = max(1, int(h * 0.125 + 0.5)), max(1, int(w * 0.125 + 0.5))
+    ty, tx = torch.randint(-sh, sh + 1, (n,), generator=g), torch.randint(-sw, sw + 1, (n,), generator=g)
+    ref = torch.zeros_like(x)
+    for i in range(n):
+        dy, dx = int(ty[i]), int(tx[i])
+        ys, xs = slice(max(0, dy), min(h, h + dy)), slice(max(0, dx), min(w, w + dx))
+        yd, xd = slice(max(0, -dy), min(h, h - dy)), slice(max(0, -dx), min(w, w - dx))
+        ref[i, :, ys, xs] = x[i, :, yd, xd]
+    assert torch.equal(y, ref)
+    weight = torch.randn_like(x)
+    (gy,) = torch.autograd.grad((y * weight).sum(), x)
+    (gr,) = torch.autograd.grad((ref * weight).sum(), x)
+    assert torch.equal(gy, gr)
 
 
 def test_diffaug_reseed_repeats():
