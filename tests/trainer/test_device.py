@@ -131,3 +131,30 @@ def test_the_r1_check_agrees_with_itself_on_the_cpu(tmp_path):
     assert {r["op"] for r in ops} == {"conv2d", "batch_norm", "leaky_relu", "avg_pool2d"}
     for r in ops:
         assert r["out_rel_diff"] < 1e-12 and r["r1_rel_diff"] < 1e-8 and r["grad_rel_diff"] < 1e-7, r
+
+
+def test_the_r1_probe_recomputes_the_run_s_own_penalty(tmp_path):
+    """scripts/gpu_r1_probe.py on the CPU: its float32 copy of the D step must give the R1 the run itself logged
+    (else its GPU rows would be compared with something the run never computed), and float64 must agree with it."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    root = Path(__file__).resolve().parents[2]
+    data = tmp_path / "data"
+    generate_dataset(data, garments=1, seed=0, frame=(192, 144), progress=False)
+    garment = next(p for p in data.iterdir() if p.is_dir()).name
+    out = tmp_path / "probe"
+    subprocess.run([sys.executable, str(root / "scripts" / "gpu_r1_probe.py"), "--data", str(data), "--garment",
+                    garment, "--preset", "tiny", "--steps", "3", "--every", "1", "--out", str(out)],
+                   check=True, cwd=root, capture_output=True, timeout=300)
+    rows = [json.loads(line) for line in (out / "r1_probe.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [0, 1, 2]
+    for r in rows:
+        (cpu32,) = [v for v in r["variants"] if v["device"] == "cpu"]
+        assert np.isfinite(r["r1_run"]) and r["r1_run"] > 0
+        assert abs(cpu32["r1"] - r["r1_run"]) <= 1e-6 * r["r1_run"], r
+        assert cpu32["r1_rel"] < 1e-4 and cpu32["r1_grad_rel"] < 1e-2, r
+    assert (out / "metrics.json").exists()          # an ordinary run directory besides
