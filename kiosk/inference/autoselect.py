@@ -8,6 +8,9 @@ no more than the bundle already accepts from quantization, in the units the expo
   over the grid (`<kind>_friction_mae_levels`) and, where the bundle states it, over the garment
   (`<kind>_friction_mae_garment_levels`);
 - visual: PSNR against ONNX Runtime's image at least the stated `<kind>_visual_psnr_db`.
+Each engine's figures also carry the share of the garment's pixels a just-noticeable friction step away from ONNX
+Runtime's (`felt_garment_fraction`): reported beside the means, not a bound, since the mean bounds are what the
+exporter states for every precision.
 A bundle that states no error for its graphs' precision (fp32) gets `DEFAULT_BOUND_LEVELS` friction levels and
 `DEFAULT_VISUAL_LEVELS` colour levels of mean difference. An engine that fails to load or run, or returns NaN/Inf,
 is recorded with its reason and skipped.
@@ -41,6 +44,7 @@ class EngineFigures:
     visual_psnr_db: float | None = None   # worst graph's visual PSNR against ONNX Runtime's (99 = identical)
     eligible: bool = False
     reason: str = ""
+    felt_garment_fraction: float | None = None  # worst graph's share of garment pixels a JND step off, in [0, 1]
 
 
 @dataclass(frozen=True)
@@ -170,7 +174,8 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
             continue
         if engine == "onnxruntime":  # the reference: no deviation from itself, in the figures the others get
             outputs = {o for k in kinds for o in bundle.manifest.graph(k).outputs}
-            worst = ({"friction_mae_levels": 0.0, "friction_mae_garment_levels": 0.0} if "tactile" in outputs
+            worst = ({"friction_mae_levels": 0.0, "friction_mae_garment_levels": 0.0,
+                      "friction_felt_garment_fraction": 0.0} if "tactile" in outputs
                      else {}) | ({"visual_psnr_db": IDENTICAL_DB} if "visual" in outputs else {})
 
         def fig(key: str) -> float | None:
@@ -178,7 +183,7 @@ def choose_engine(bundle: Bundle, *, threads: int, providers: list[str] | None =
 
         figures.append(EngineFigures(engine, round(statistics.median(total), 3), fig("friction_mae_levels"),
                                      fig("friction_mae_garment_levels"), fig("visual_psnr_db"), not breaches,
-                                     "; ".join(breaches)[:400]))
+                                     "; ".join(breaches)[:400], fig("friction_felt_garment_fraction")))
     best = min((f for f in figures if f.eligible), key=lambda f: f.ms_p50)
     return EngineChoice(best.engine, error_bound(bundle), {k: list(g) for k, g in grids.items()}, runs, figures,
                         describe(), bounds)

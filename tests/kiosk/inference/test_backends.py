@@ -87,6 +87,9 @@ def test_auto_records_both_engines_and_picks_the_faster_eligible(tmp_path):
     figs = {f.engine: f for f in choice.figures}
     assert set(figs) == set(ENGINES)
     assert figs["onnxruntime"].err_levels == 0.0 and figs["onnxruntime"].eligible
+    assert figs["onnxruntime"].felt_garment_fraction == 0.0
+    # the other engine: how much of the garment a finger could tell from ONNX Runtime's, a share of its pixels
+    assert 0.0 <= figs["openvino"].felt_garment_fraction <= 1.0
     assert all(f.ms_p50 is not None and f.ms_p50 > 0 for f in figs.values())
     eligible = [f for f in figs.values() if f.eligible]
     assert choice.engine == min(eligible, key=lambda f: f.ms_p50).engine
