@@ -19,6 +19,7 @@ later torch that passes it makes the workarounds in DiffAugment and MultiScaleD 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 from pathlib import Path
@@ -54,7 +55,7 @@ def _op_terms(op, x0: torch.Tensor, dev: str, channels_last: bool, cudnn: bool):
     torch.backends.cudnn.enabled = cudnn
     x = x0.to(dev).requires_grad_(True)
     xin = x.to(memory_format=torch.channels_last) if channels_last else x * 1
-    op = op.to(dev) if isinstance(op, nn.Module) else op
+    op = copy.deepcopy(op).to(dev) if isinstance(op, nn.Module) else op   # the caller's stays on the CPU
     out = op(xin).pow(2).sum()
     (g,) = torch.autograd.grad(out, x, create_graph=True)
     r1 = g.pow(2).sum()
@@ -79,7 +80,6 @@ def op_rows(devices: list[str], seed: int) -> list[dict]:
                 continue
             for cudnn in ((True, False) if dev == "cuda" else (True,)):
                 out, r1, g = _op_terms(op, x0, dev, True, cudnn)
-                op = op.cpu() if isinstance(op, nn.Module) else op
                 rows.append({"op": name, "device": dev, "cudnn": cudnn, "layout": "channels_last",
                              "out_rel_diff": abs(out - ref[0]) / abs(ref[0]),
                              "r1_rel_diff": abs(r1 - ref[1]) / abs(ref[1]),
