@@ -28,7 +28,7 @@ cat "$OUT/machine.txt"
 RECIPE="--data $DATA --garment $GARMENT --preset cpu --method ours --steps $STEPS --set data.crop=$CROP \
 --set train.threads=1 --set train.progress=false --set train.ema=0.999 --set loss.tactile_r1=10 \
 --set loss.diffaug=color,translation,cutout --set train.val_every=$STEPS --set train.sample_every=$STEPS"
-# `train` NAME [python prelude] -- ARGS...: one run in the background, its log beside it
+# `train` NAME PRELUDE ARGS...: one run in the background (PRELUDE: python run first), its log beside it
 train() {
   local name=$1 pre=$2; shift 2
   timeout -s TERM "$TRAIN_S" $PY -c "import runpy, sys, torch; $pre; sys.argv = ['vtkiosk'] + sys.argv[1:]; \
@@ -72,5 +72,5 @@ EOF
 cat "$OUT/summary.txt" "$OUT/r1_check.txt"
 grep "\[probe\]" "$W/probe.log" | tee "$OUT/probe_rows.txt"
 cp "$W/probe/r1_probe.jsonl" "$OUT/" 2>/dev/null
-tar -C "$W" -czf "$OUT/runs.tar.gz" --exclude='*/samples' .
+tar -C "$W" -czf "$OUT/runs.tar.gz" --exclude='*/samples' --exclude='*.pt' .   # checkpoints exceed what a lease returns
 echo "[$(( $(date +%s) - START )) s] packed"

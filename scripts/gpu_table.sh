@@ -95,12 +95,12 @@ print(t['step'], 'steps', t['seconds_per_step'], 's/step', 'stopped early' if t[
 done; done
 
 # 3. scores: each run scored in its own process (cached beside the run), then one table from the caches
-[ "${SCORE:-1}" = 1 ] && for g in $GARMENTS; do for m in $METHODS; do
-  timeout "$(left "$EVAL_END")" $PY -m vtkiosk eval --compare "$W/runs/$g/$m" --which latest --no-swap \
-    --out "$W/score/$g-$m" > "$W/runs/$g/$m.eval.log" 2>&1 &
-done; done
-wait
 if [ "${SCORE:-1}" = 1 ]; then
+  for g in $GARMENTS; do for m in $METHODS; do
+    timeout "$(left "$EVAL_END")" $PY -m vtkiosk eval --compare "$W/runs/$g/$m" --which latest --no-swap \
+      --out "$W/score/$g-$m" > "$W/runs/$g/$m.eval.log" 2>&1 &
+  done; done
+  wait
   ARGS=(); for m in $METHODS; do for g in $GARMENTS; do ARGS+=("$W/runs/$g/$m"); done; done
   timeout "$(left "$TABLE_END")" $PY -m vtkiosk eval --compare "${ARGS[@]}" --which latest --ours ours --no-swap \
     --out "$W/table" > "$W/table.log" 2>&1
