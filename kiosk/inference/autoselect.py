@@ -9,8 +9,10 @@ no more than the bundle already accepts from quantization, in the units the expo
   (`<kind>_friction_mae_garment_levels`);
 - visual: PSNR against ONNX Runtime's image at least the stated `<kind>_visual_psnr_db`.
 Each engine's figures also carry the share of the garment's pixels a just-noticeable friction step away from ONNX
-Runtime's (`felt_garment_fraction`): reported beside the means, not a bound, since the mean bounds are what the
-exporter states for every precision.
+Runtime's (`felt_garment_fraction`). Where the bundle states that share for its precision
+(`<kind>_friction_felt_garment_fraction`, which the exporter writes for quantized graphs), it is a bound too: a mean
+can stay small while the differences gather on a few felt pixels, and the bundle already told the operator how much
+of the garment its quantization lets a finger notice. Where it states none (fp32), the share is reported only.
 A bundle that states no error for its graphs' precision (fp32) gets `DEFAULT_BOUND_LEVELS` friction levels and
 `DEFAULT_VISUAL_LEVELS` colour levels of mean difference. An engine that fails to load or run, or returns NaN/Inf,
 is recorded with its reason and skipped.
@@ -79,6 +81,9 @@ def graph_bounds(bundle: Bundle, kind: str) -> dict[str, float]:
         garment = _stated(bundle, kind, "friction_mae_garment_levels")
         if garment is not None and garment > 0:
             out["friction_mae_garment_levels"] = garment
+        felt = _stated(bundle, kind, "friction_felt_garment_fraction")
+        if felt is not None and felt > 0:
+            out["friction_felt_garment_fraction"] = felt
     if "visual" in spec.outputs:
         psnr_db = _stated(bundle, kind, "visual_psnr_db")
         if psnr_db is not None and psnr_db > 0:

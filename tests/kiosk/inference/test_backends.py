@@ -110,6 +110,15 @@ def test_auto_refuses_an_engine_outside_the_stated_bound(tmp_path):
     assert lb.engine_choice.bounds["visual"] == {"visual_psnr_db": 1e9}
 
 
+def test_auto_holds_engines_to_a_stated_felt_share(tmp_path):
+    stated = {"fp32": {f"{k}_friction_felt_garment_fraction": 0.25 for k in ("full", "tactile")}}
+    lb = LoadedBundle(_bundle(tmp_path, errors=stated), engine="auto", auto_runs=1)
+    assert lb.engine_choice.bounds["full"]["friction_felt_garment_fraction"] == 0.25
+    assert "friction_felt_garment_fraction" not in lb.engine_choice.bounds["visual"]  # no tactile output there
+    ov = {f.engine: f for f in lb.engine_choice.figures}["openvino"]
+    assert ov.felt_garment_fraction <= 0.25 and ov.eligible  # fp32 graphs: the engines agree to 1e-4
+
+
 def test_breaches_name_the_bound_and_read_psnr_as_a_floor():
     from kiosk.inference.autoselect import _breaches
     dev = {"friction_mae_levels": 0.3, "friction_mae_garment_levels": 1.2, "visual_psnr_db": 45.0}
@@ -119,16 +128,24 @@ def test_breaches_name_the_bound_and_read_psnr_as_a_floor():
                            "visual_psnr_db": 47.0}) == ["friction_mae_garment_levels 1.2 against the bound 1",
                                                         "visual_psnr_db 45 against the bound 47"]
     assert _breaches({}, {"visual_mae_levels": 0.5}) == []  # a figure the graph does not output breaks nothing
+    # the felt share is a ceiling like the means: small mean, but the differences gather on felt pixels
+    felt = {"friction_mae_levels": 0.3, "friction_felt_garment_fraction": 0.08}
+    assert _breaches(felt, {"friction_mae_levels": 0.9, "friction_felt_garment_fraction": 0.062}) == [
+        "friction_felt_garment_fraction 0.08 against the bound 0.062"]
+    assert _breaches(felt, {"friction_felt_garment_fraction": 0.08}) == []
 
 
 def test_graph_bounds_read_the_stated_errors_and_fall_back(tmp_path):
     from kiosk.inference.autoselect import DEFAULT_VISUAL_LEVELS, graph_bounds
     stated = {"fp32": {"full_friction_mae_levels": 0.9, "full_friction_mae_garment_levels": 3.0,
-                       "full_visual_psnr_db": 47.0, "tactile_friction_mae_levels": 0.0}}
+                       "full_friction_felt_garment_fraction": 0.062,
+                       "full_visual_psnr_db": 47.0, "tactile_friction_mae_levels": 0.0,
+                       "tactile_friction_felt_garment_fraction": 0.0}}
     b = _bundle(tmp_path / "a", errors=stated)
     assert graph_bounds(b, "full") == {"friction_mae_levels": 0.9, "friction_mae_garment_levels": 3.0,
-                                       "visual_psnr_db": 47.0}
-    assert graph_bounds(b, "tactile") == {"friction_mae_levels": DEFAULT_BOUND_LEVELS}  # 0 is no bound
+                                       "friction_felt_garment_fraction": 0.062, "visual_psnr_db": 47.0}
+    # 0 is no bound, as for the means
+    assert graph_bounds(b, "tactile") == {"friction_mae_levels": DEFAULT_BOUND_LEVELS}
     assert graph_bounds(b, "visual") == {"visual_mae_levels": DEFAULT_VISUAL_LEVELS}
 
 
