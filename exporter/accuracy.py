@@ -5,7 +5,10 @@ exporter's held-out sketches.
 The per-input figures are `kiosk.contract.accuracy.deviation`, the same definition `engine: auto` holds another
 engine to; the friction error is stated over the whole grid (`friction_mae_levels`, the figure export bounds) and
 over the garment alone (`friction_mae_garment_levels`, what a finger on the garment feels), with the share of the
-garment's pixels a just-noticeable step or more off (`friction_felt_garment_fraction`)."""
+garment's pixels a just-noticeable step or more off (`friction_felt_garment_fraction`).
+
+`interior_errors` asks where the largest friction errors sit once the place of an edge is set aside (a seam's
+outline moved by one pixel is 255 levels at that pixel and nothing a fingertip tells apart)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -14,6 +17,7 @@ import numpy as np
 import onnxruntime as ort
 
 from kiosk.contract.accuracy import deviation
+from kiosk.contract.haptics import friction_map
 from kiosk.contract.graph import feeds
 from kiosk.contract.sketch import NetworkInput
 
@@ -60,3 +64,64 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
             out["friction_felt_garment_fraction"] = float(np.mean(felt))
         out["friction_max_levels"] = fric_max
     return out
+
+
+EDGE_LEVELS = 64      # a reference pixel whose 3x3 neighbourhood spans this many levels is on an edge
+OUTLINE_PX = 2        # garment pixels this close to the garment's outline are on its edge too
+BIG_LEVELS = 64       # an interior error this large is counted (a quarter of the range; several JND steps)
+
+
+def _spread3(a: np.ndarray) -> np.ndarray:
+    """max - min over each pixel's 3x3 neighbourhood (edge-replicated)."""
+    p = np.pad(a, 1, mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(p, (3, 3))
+    return win.max(axis=(-1, -2)) - win.min(axis=(-1, -2))
+
+
+def _inner(mask: np.ndarray, px: int) -> np.ndarray:
+    """Pixels of `mask` at least `px` pixels (chessboard distance) inside its outline."""
+    m = np.pad(mask, px, constant_values=False)
+    win = np.lib.stride_tricks.sliding_window_view(m, (2 * px + 1, 2 * px + 1))
+    return win.all(axis=(-1, -2))
+
+
+def interior_errors(reference: Sequence[dict[str, np.ndarray]], test, inputs: Sequence[NetworkInput],
+                    friction_scale: float, *, normalization: str = "calibrated",
+                    constants: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Friction errors off edges: garment pixels `OUTLINE_PX` inside the outline whose reference neighbourhood spans
+    under `EDGE_LEVELS` levels. Returns the largest such error over `inputs` (levels), how many such pixels are
+    `BIG_LEVELS` or more off (per input, mean) beside the garment's size in pixels (mean), the share of those where
+    the reference is saturated (255: a seam or fold, `perceptual`'s top), and at the worst pixel the reference
+    slope's percentile within the garment and the tested slope over the reference's.
+    Inputs without a garment or without a tactile output add nothing; with none at all the dict is empty."""
+    worst, worst_pct, worst_ratio, big, big_sat, size = -1.0, float("nan"), float("nan"), [], 0, []
+    for a, x in zip(reference, inputs):
+        if "tactile" not in a:
+            continue
+        b = test.run(["tactile"], feeds(x.sketch, x.mask))[0]
+        ta, tb = np.asarray(a["tactile"]), np.asarray(b)
+        fa, fb = (friction_map(t[0, 0], t[0, 1], friction_scale, normalization=normalization,
+                               constants=constants).astype(np.int16) for t in (ta, tb))
+        garment = np.asarray(x.mask).reshape(fa.shape) > 0.5
+        inner = _inner(garment, OUTLINE_PX) & (_spread3(fa) < EDGE_LEVELS)
+        if not inner.any():
+            continue
+        diff = np.abs(fa - fb)
+        over = inner & (diff >= BIG_LEVELS)
+        big.append(int(over.sum()))
+        size.append(int(garment.sum()))
+        big_sat += int((over & (fa >= 255)).sum())
+        d = np.where(inner, diff, -1)
+        j = np.unravel_index(int(np.argmax(d)), d.shape)
+        if d[j] > worst:
+            slope = np.hypot(ta[0, 0].astype(np.float64), ta[0, 1].astype(np.float64))
+            got = float(np.hypot(float(tb[0, 0][j]), float(tb[0, 1][j])))
+            worst, worst_pct = float(d[j]), 100.0 * float(np.mean(slope[garment] < slope[j]))
+            worst_ratio = got / float(slope[j]) if slope[j] > 0 else float("nan")
+    if not big:
+        return {}
+    total = sum(big)
+    return {"friction_max_interior_levels": worst, "friction_interior_big_px": float(np.mean(big)),
+            "garment_px": float(np.mean(size)),
+            "friction_interior_big_saturated": (big_sat / total) if total else 0.0,
+            "worst_interior_slope_percentile": worst_pct, "worst_interior_slope_ratio": worst_ratio}

@@ -8,6 +8,11 @@ and its variants, as the exporter does, and measured per size on held-out sketch
 that share a method calibrate once. With --timing-size, the fp32 graph and every variant are timed round-robin in
 one process (ratios to fp32 stay meaningful on a busy machine; absolute times come from `vtkiosk bench infer`).
 The numbers behind docs/performance.md's "int8 accuracy" table come from this.
+
+Friction figures use the `calibrated` mapping unless `--normalization perceptual` (the bundle's default; its
+constants are calibrated on the garment as the exporter does). The `interior` columns set the place of edges aside
+(exporter/accuracy.py `interior_errors`): the largest error on garment pixels off the outline and off the reference's
+edges, how many such pixels are 64 levels or more off per sketch, and the share of those on seams (reference 255).
 """
 from __future__ import annotations
 
@@ -41,6 +46,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--timing-size", type=int, default=None, help="also time every variant at this square size")
     p.add_argument("--rounds", type=int, default=8, help="round-robin timing rounds (default 8)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--normalization", choices=("calibrated", "perceptual"), default="calibrated",
+                   help="friction mapping the errors are measured in (default calibrated, as the committed table)")
     p.add_argument("--json", type=Path, default=None)
     return p
 
@@ -64,7 +71,7 @@ def _timings(paths: dict[str, Path], size: int, rounds: int, threads: int) -> di
 
 def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> int:
     args = build_parser(prog).parse_args(argv)
-    from exporter.accuracy import compare_outputs, reference_outputs
+    from exporter.accuracy import compare_outputs, interior_errors, reference_outputs
     from exporter.calibration import calibration_set, held_out_set
     from exporter.export import _reference_assets, rewrites_conv_transpose
     from exporter.graphs import export_graph, ort_session
@@ -76,6 +83,11 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
     generator, info = load_generator(args.run, args.which)
     scale = float(info["friction_scale"])
     garment = Path(read_run_config(args.run).garment)
+    constants = None
+    if args.normalization == "perceptual":
+        from exporter.export import _physical
+        constants = _physical(garment, info, "perceptual")[1]
+    mapping = {"normalization": args.normalization, "constants": constants}
     outputs = GRAPH_OUTPUTS[args.graph]
     rows = []
     with tempfile.TemporaryDirectory(prefix="vtkiosk-int8-study-") as tmp_s:
@@ -101,15 +113,22 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
             paths[variant] = path
             sess = ort_session(path, threads=args.threads)
             for s in args.sizes:
-                err = compare_outputs(ref_out[s], sess, outputs, held[s], scale)
+                err = compare_outputs(ref_out[s], sess, outputs, held[s], scale, **mapping)
+                err |= interior_errors(ref_out[s], sess, held[s], scale, **mapping)
                 rows.append({"variant": variant, "method": method, "fp32_islands": ",".join(parts) or "none",
                              "size": f"{s[0]}x{s[1]}", "quantize_s": quant_s, **err})
         timing = _timings(paths, args.timing_size, args.rounds, args.threads) if args.timing_size else {}
-    head = ["variant", "size", "PSNR dB", "tactile MAE", "friction MAE", "friction max"]
-    print("| " + " | ".join(head) + " |\n|---|---|---:|---:|---:|---:|")
+    head = ["variant", "size", "PSNR dB", "tactile MAE", "friction MAE", "friction max", "interior max",
+            "interior px >= 64", "garment px", "of those on seams", "worst's slope pct", "worst's slope / fp32"]
+    print(f"friction in the {args.normalization} mapping")
+    print("| " + " | ".join(head) + " |\n|---|---|" + "---:|" * (len(head) - 2))
+    nan = float("nan")
     for r in rows:
-        print(f"| {r['variant']} | {r['size']} | {r.get('visual_psnr_db', float('nan')):.1f} | "
-              f"{r['tactile_mae']:.4f} | {r['friction_mae_levels']:.2f} | {r['friction_max_levels']:.0f} |")
+        print(f"| {r['variant']} | {r['size']} | {r.get('visual_psnr_db', nan):.1f} | "
+              f"{r['tactile_mae']:.4f} | {r['friction_mae_levels']:.2f} | {r['friction_max_levels']:.0f} | "
+              f"{r.get('friction_max_interior_levels', nan):.0f} | {r.get('friction_interior_big_px', nan):.1f} | "
+              f"{r.get('garment_px', nan):.0f} | {100 * r.get('friction_interior_big_saturated', nan):.0f} % | "
+              f"{r.get('worst_interior_slope_percentile', nan):.1f} | {r.get('worst_interior_slope_ratio', nan):.2f} |")
     if timing:
         print(f"\nmedian ms at {args.timing_size}px, round-robin ({args.rounds} rounds, {args.threads} threads):")
         for k, v in timing.items():
@@ -117,7 +136,7 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"run": portable(args.run), "checkpoint": args.which, "step": info.get("step"),
-                                         "graph": args.graph, "rows": rows, "timing_size": args.timing_size,
+                                         "graph": args.graph, "normalization": args.normalization, "rows": rows, "timing_size": args.timing_size,
                                          "timing_ms": timing}, indent=1) + "\n")
     return 0
 

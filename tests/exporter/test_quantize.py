@@ -104,13 +104,18 @@ def test_int8_study_table_and_json(run_dir, tmp_path, capsys):
     out = tmp_path / "study.json"
     assert main(["--run", str(run_dir), "--sizes", "256", "--variants", "minmax:;percentile:pe,heads",
                  "--per-size", "2", "--error-sketches", "1", "--timing-size", "256", "--rounds", "1",
-                 "--json", str(out)]) == 0
+                 "--json", str(out), "--normalization", "perceptual"]) == 0
     text = capsys.readouterr().out
     assert "| percentile:pe,heads | 256x256 |" in text and "x fp32" in text
+    assert "friction in the perceptual mapping" in text and "interior max" in text
     import json
     res = json.loads(out.read_text())
+    assert res["normalization"] == "perceptual"
     assert [r["fp32_islands"] for r in res["rows"]] == ["none", "pe,heads"]
     assert all(np.isfinite(r["friction_mae_levels"]) and r["tactile_mae"] > 0 for r in res["rows"])
+    for r in res["rows"]:  # off-edge errors are part of the grid's, so never above its maximum
+        assert 0 <= r["friction_max_interior_levels"] <= r["friction_max_levels"]
+        assert 0 <= r["friction_interior_big_saturated"] <= 1 and 0 <= r["worst_interior_slope_percentile"] <= 100
     assert set(res["timing_ms"]) == {"fp32", "minmax:", "percentile:pe,heads"}
 
 
