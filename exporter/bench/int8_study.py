@@ -136,7 +136,8 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"run": portable(args.run), "checkpoint": args.which, "step": info.get("step"),
-                                         "graph": args.graph, "normalization": args.normalization, "rows": rows, "timing_size": args.timing_size,
+                                         "graph": args.graph, "normalization": args.normalization,
+                                         "rows": rows, "timing_size": args.timing_size,
                                          "timing_ms": timing}, indent=1) + "\n")
     return 0
 
