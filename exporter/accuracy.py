@@ -41,9 +41,16 @@ def compare_outputs(reference: Sequence[dict[str, np.ndarray]], test, outputs: l
                     inputs: Sequence[NetworkInput], friction_scale: float, *, normalization: str = "calibrated",
                     constants: Mapping[str, float] | None = None) -> dict[str, float]:
     """Like `compare_sessions` with the reference outputs given; `test` is anything with ORT's `run(names, feed)`."""
+    return compare_tested(reference, reference_outputs(test, outputs, inputs), inputs, friction_scale,
+                          normalization=normalization, constants=constants)
+
+
+def compare_tested(reference: Sequence[dict[str, np.ndarray]], tested: Sequence[dict[str, np.ndarray]],
+                   inputs: Sequence[NetworkInput], friction_scale: float, *, normalization: str = "calibrated",
+                   constants: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Like `compare_outputs` with the tested graph's outputs given too (a caller measuring them twice runs it once)."""
     vis, tac, fric, fric_in, felt, fric_max = [], [], [], [], [], 0.0
-    for a, x in zip(reference, inputs):
-        b = dict(zip(outputs, test.run(outputs, feeds(x.sketch, x.mask))))
+    for a, b, x in zip(reference, tested, inputs):
         d = deviation(a, b, x.mask, friction_scale, normalization=normalization, constants=constants)
         if "visual_psnr_db" in d:
             vis.append(d["visual_psnr_db"])
@@ -84,7 +91,8 @@ def _inner(mask: np.ndarray, px: int) -> np.ndarray:
     return cv2.erode(mask.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 
 
-def interior_errors(reference: Sequence[dict[str, np.ndarray]], test, inputs: Sequence[NetworkInput],
+def interior_errors(reference: Sequence[dict[str, np.ndarray]], tested: Sequence[dict[str, np.ndarray]],
+                    inputs: Sequence[NetworkInput],
                     friction_scale: float, *, normalization: str = "calibrated",
                     constants: Mapping[str, float] | None = None) -> dict[str, float]:
     """Friction errors off edges: garment pixels `OUTLINE_PX` inside the outline whose reference neighbourhood spans
@@ -94,11 +102,10 @@ def interior_errors(reference: Sequence[dict[str, np.ndarray]], test, inputs: Se
     slope's percentile within the garment and the tested slope over the reference's.
     Inputs without a garment or without a tactile output add nothing; with none at all the dict is empty."""
     worst, worst_pct, worst_ratio, big, big_sat, size = -1.0, float("nan"), float("nan"), [], 0, []
-    for a, x in zip(reference, inputs):
+    for a, b, x in zip(reference, tested, inputs):
         if "tactile" not in a:
             continue
-        b = test.run(["tactile"], feeds(x.sketch, x.mask))[0]
-        ta, tb = np.asarray(a["tactile"]), np.asarray(b)
+        ta, tb = np.asarray(a["tactile"]), np.asarray(b["tactile"])
         fa, fb = (friction_map(t[0, 0], t[0, 1], friction_scale, normalization=normalization,
                                constants=constants).astype(np.int16) for t in (ta, tb))
         garment = np.asarray(x.mask).reshape(fa.shape) > 0.5

@@ -51,14 +51,6 @@ def test_no_garment_states_no_garment_error():
     assert "friction_mae_garment_levels" not in err
 
 
-class _Fixed:
-    def __init__(self, tactile: np.ndarray):
-        self.out = tactile
-
-    def run(self, names, feed):
-        return [self.out]
-
-
 def _garment(h=32, w=32):
     mask = np.zeros((1, 1, h, w), np.float32)
     mask[..., 6:26, 6:26] = 1.0
@@ -76,7 +68,7 @@ def test_interior_errors_set_edges_aside_and_find_seams():
     got[0, 0, 18, 18] = 1.0              # plain interior: 189 levels off
     got[0, 0, 10, 10] = 0.3              # inside the seam: 189 levels off, on a saturated reference pixel
     got[0, 0, 8, 20] = 0.31              # interior too, but a few levels only
-    e = interior_errors([{"tactile": ref}], _Fixed(got), [x], 1.0)
+    e = interior_errors([{"tactile": ref}], [{"tactile": got}], [x], 1.0)
     assert e["friction_max_interior_levels"] == 189
     assert e["friction_interior_big_px"] == 2 and e["friction_interior_big_saturated"] == 0.5
     # the worst pixel found first in raster order is the seam's centre, among the garment's steepest slopes
@@ -85,13 +77,13 @@ def test_interior_errors_set_edges_aside_and_find_seams():
     # with the interior pixels untouched only the outline's error is left, and it is not interior
     only_edge = ref.copy()
     only_edge[0, 0, 6, 6] = 1.0
-    e = interior_errors([{"tactile": ref}], _Fixed(only_edge), [x], 1.0)
+    e = interior_errors([{"tactile": ref}], [{"tactile": only_edge}], [x], 1.0)
     assert e["friction_max_interior_levels"] == 0 and e["friction_interior_big_px"] == 0
     assert e["friction_interior_big_saturated"] == 0.0
     # no garment, or no tactile output: nothing to state, and nothing divided by zero
     blank = NetworkInput(np.zeros_like(x.mask), np.zeros_like(x.mask))
-    assert interior_errors([{"tactile": ref}], _Fixed(got), [blank], 1.0) == {}
-    assert interior_errors([{"visual": ref}], _Fixed(got), [x], 1.0) == {}
+    assert interior_errors([{"tactile": ref}], [{"tactile": got}], [blank], 1.0) == {}
+    assert interior_errors([{"visual": ref}], [{"visual": got}], [x], 1.0) == {}
 
 
 @settings(max_examples=40, deadline=None)
