@@ -4,7 +4,10 @@
 full-field tactile FB-SIFID on unseen sketches, each with a paired bootstrap interval of `ours - X` that excludes 0,
 on at least TARGET_GARMENTS of the garments (and on at least 3 of 4: TARGET_SHARE), and close at least TARGET_GAP of
 the flat-to-oracle gap on full-field angle (mean over garments). A garment where some method has no run cannot be
-won: "better than every baseline" is not shown by a baseline that was not trained.
+won: "better than every baseline" is not shown by a baseline that was not trained. An ordering from fewer than
+TARGET_SEEDS runs of `ours` is reported but does not count towards the target: its interval resamples the held-out
+touches and sketches, not training, and on this project's tables one-seed leads of 0.4-0.8 deg have vanished with
+seeds 1 and 2 (docs/training.md, Fidelity II). The pooled seed-to-seed SD beside it says how far a seed moves a figure.
 """
 from __future__ import annotations
 
@@ -14,16 +17,30 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from trainer.bootstrap import Units, paired_bootstrap
+from trainer.bootstrap import Units, paired_bootstrap, value
 
 TARGET_METRICS = ("full_angle_deg_outside", "full_fbsifid_unseen")
 TARGET_GAP = 0.60
 TARGET_GAP_METRIC = "full_angle_deg"
 TARGET_GARMENTS = 3
 TARGET_SHARE = 0.75
+TARGET_SEEDS = 3      # the issue's "3 seeds for the close pairs": fewer runs of `ours` order a garment provisionally
 LABELS = {"full_angle_deg_outside": "outside°", "full_fbsifid_unseen": "Full FB-SIFID unseen"}
 
 Grouped = Mapping[str, Mapping[str, Sequence[Mapping[str, Units]]]]   # method -> garment -> runs' units
+
+
+def seed_sd(runs: Mapping[str, Sequence[Mapping[str, Units]]], metric: str) -> float | None:
+    """Pooled within-method SD of `metric` across seeds: sqrt(sum (n_i - 1) s_i^2 / sum (n_i - 1)) over the methods
+    with at least two runs (`runs`: method -> its runs on one garment). None when no method has two."""
+    ss, dof = 0.0, 0
+    for rs in runs.values():
+        vals = np.array([value(metric, u[metric]) for u in rs if metric in u and len(u[metric])])
+        vals = vals[np.isfinite(vals)]
+        if len(vals) >= 2:
+            ss += float(np.sum((vals - vals.mean()) ** 2))
+            dof += len(vals) - 1
+    return math.sqrt(ss / dof) if dof else None
 
 
 def check(grouped: Grouped, results: Sequence[dict], ours: str, competitors: Sequence[str], *,
@@ -52,16 +69,22 @@ def check(grouped: Grouped, results: Sequence[dict], ours: str, competitors: Seq
                 won = won and d is not None and d.hi < 0
             rows.append(row)
         gap = float(np.mean(gaps[g])) if gaps.get(g) else None
-        garments.append({"garment": g, "won": won and bool(rows), "against": rows, "missing": missing,
-                         "gap_closed": gap})
+        here = {m: grouped[m][g] for m in [ours, *competitors] if grouped.get(m, {}).get(g)}
+        n_ours = len(grouped[ours][g])
+        won = won and bool(rows)
+        garments.append({"garment": g, "won": won, "settled": won and n_ours >= TARGET_SEEDS, "against": rows,
+                         "missing": missing, "gap_closed": gap, "runs": {m: len(r) for m, r in here.items()},
+                         "seed_sd": {k: seed_sd(here, k) for k in TARGET_METRICS}})
     n = len(garments)
     wins = sum(x["won"] for x in garments)
+    settled = sum(x["settled"] for x in garments)
     needed = max(TARGET_GARMENTS, math.ceil(TARGET_SHARE * n))
     gap_vals = [x["gap_closed"] for x in garments if x["gap_closed"] is not None]
     mean_gap = float(np.mean(gap_vals)) if gap_vals else None
     return {"ours": ours, "metrics": list(TARGET_METRICS), "competitors": list(competitors), "garments": garments,
-            "wins": wins, "garments_needed": needed, "mean_gap_closed": mean_gap, "gap_needed": TARGET_GAP,
-            "met": bool(n and wins >= needed and mean_gap is not None and mean_gap >= TARGET_GAP)}
+            "wins": wins, "settled_wins": settled, "seeds_needed": TARGET_SEEDS, "garments_needed": needed,
+            "mean_gap_closed": mean_gap, "gap_needed": TARGET_GAP,
+            "met": bool(n and settled >= needed and mean_gap is not None and mean_gap >= TARGET_GAP)}
 
 
 def markdown(v: dict) -> str:
@@ -84,12 +107,22 @@ def markdown(v: dict) -> str:
             lines.append(f"| {gv['garment']} | {row['method']} | " + " | ".join(cells) + " |")
         for x in gv["missing"]:
             lines.append(f"| {gv['garment']} | {x} | " + " | ".join("not run" for _ in v["metrics"]) + " |")
-    lines += ["", "| garment | ordered against every X | gap closed (full angle) |", "|---|---|---|"]
+    lines += ["", f"| garment | ordered against every X | runs of {ours} | seed-to-seed SD ("
+              + " / ".join(LABELS[k] for k in v["metrics"]) + ") | gap closed (full angle) |", "|---|---|---|---|---|"]
     for gv in v["garments"]:
         gap = "–" if gv["gap_closed"] is None else f"{gv['gap_closed']:.0%}"
-        lines.append(f"| {gv['garment']} | {'yes' if gv['won'] else 'no'} | {gap} |")
+        n_ours = gv["runs"][ours]
+        order = "no" if not gv["won"] else "yes" if gv["settled"] else f"provisional (needs {v['seeds_needed']} runs)"
+        sds = " / ".join("–" if gv["seed_sd"][k] is None else f"{gv['seed_sd'][k]:.3g}" for k in v["metrics"])
+        lines.append(f"| {gv['garment']} | {order} | {n_ours} | {sds} | {gap} |")
     gap = "–" if v["mean_gap_closed"] is None else f"{v['mean_gap_closed']:.0%}"
-    lines += ["", f"**{'Met' if v['met'] else 'Not met'}**: {ours} is ordered first on {v['wins']} of "
-              f"{len(v['garments'])} garments (needs {v['garments_needed']}); mean gap closed {gap} "
-              f"(needs {v['gap_needed']:.0%})."]
+    provisional = v["wins"] - v["settled_wins"]
+    note = f", {provisional} more on fewer than {v['seeds_needed']} runs of {ours}" if provisional else ""
+    lines += ["", f"**{'Met' if v['met'] else 'Not met'}**: {ours} is ordered first on {v['settled_wins']} of "
+              f"{len(v['garments'])} garments{note} (needs {v['garments_needed']}, each on {v['seeds_needed']} runs); "
+              f"mean gap closed {gap} (needs {v['gap_needed']:.0%})."]
+    if any(gv["runs"][ours] < v["seeds_needed"] for gv in v["garments"]):
+        lines += ["", f"Fewer than {v['seeds_needed']} runs of {ours}: its intervals resample the held-out data, not "
+                  "training; the seed-to-seed SD (pooled over the methods with two or more runs on the garment) says "
+                  "how far another seed may move a figure."]
     return "\n".join(lines) + "\n"
