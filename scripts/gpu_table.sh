@@ -7,7 +7,7 @@
 #   OUT=/tmp/gpu scripts/gpu_table.sh [BUDGET_S]      # data: data/hard640 (vtkiosk data synth ... --frame 640x480)
 #
 # Environment: DATA, GARMENTS, CROP (768: the largest grid multiple a 900 px padded frame holds), DEVICE (cuda),
-# PY (python3), WORK (/tmp/gpu_table), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
+# PY (python3), WORK (a fresh /tmp/gpu_table.XXXXXX; a given one must not hold runs yet), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
 # MAX_STEPS (20000), METHODS (the three) and STEPS (skips the calibration), EXTRA (more `--set`s for every run),
 # PACK (weights sheets infer: what to pack beside the table and log), SCORE (1; 0 skips the on-device scoring: the
 # packed fp16 weights are scored elsewhere with `vtkiosk eval --compare`). Every stage has its own deadline inside
@@ -21,7 +21,11 @@ DATA=${DATA:-data/hard640}
 GARMENTS=${GARMENTS:-DenimShorts CorduroyTrousers KnitJacket SatinShirt}
 CROP=${CROP:-768}
 DEVICE=${DEVICE:-cuda}
-W=${WORK:-/tmp/gpu_table}
+W=${WORK:-$(mktemp -d /tmp/gpu_table.XXXXXX)}
+# a warm machine keeps the last call's folder: its finished runs would be packed again as this call's
+if [ -e "$W/runs" ] || [ -e "$W/cal" ]; then
+  echo "gpu_table.sh: $W already holds runs; give another WORK (or none, for a fresh folder)" >&2; exit 2
+fi
 MIN_STEPS=${MIN_STEPS:-2500}
 MAX_STEPS=${MAX_STEPS:-20000}
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
@@ -91,7 +95,9 @@ fi
 
 # 2. the runs (a run still going at the deadline gets SIGTERM, saves its latest checkpoint, and is marked so)
 train_all "$W/runs" "$STEPS" "$TRAIN_END"
+FAILED=0
 for g in $GARMENTS; do for m in $METHODS; do
+  [ -f "$W/runs/$g/$m/metrics.json" ] || { FAILED=$((FAILED + 1)); tail -n 5 "$W/runs/$g/$m.log" >> "$OUT/gpu_table.log"; }
   log "$g/$m: $($PY -c "import json; t=json.load(open('$W/runs/$g/$m/metrics.json'))['train']; \
 print(t['step'], 'steps', t['seconds_per_step'], 's/step', 'stopped early' if t['stopped_early'] else '')" 2>&1 | tail -n 1)"
 done; done
@@ -134,3 +140,4 @@ SHEETS=$(cd "$W" && ls table/sheet_* 2>/dev/null)
   tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
 done
 log "packed: $(ls -s "$OUT" | tr '\n' ' ')"
+[ "$FAILED" = 0 ] || { log "$FAILED run(s) failed: their logs' ends are above"; exit 1; }

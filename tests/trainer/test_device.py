@@ -158,3 +158,47 @@ def test_the_r1_probe_recomputes_the_run_s_own_penalty(tmp_path):
         assert abs(cpu32["r1"] - r["r1_run"]) <= 1e-6 * r["r1_run"], r
         assert cpu32["r1_rel"] < 1e-4 and cpu32["r1_grad_rel"] < 1e-2, r
     assert (out / "metrics.json").exists()          # an ordinary run directory besides
+
+
+def test_the_gpu_table_script_packs_fp16_weights_and_never_repacks_an_old_folder(tmp_path):
+    """scripts/gpu_table.sh, the prepared lease, end to end on the CPU (two steps): it packs each run's generator in
+    fp16 with a garment path free of the machine's own folders, and it refuses a WORK folder that already holds runs
+    (on a warm machine a second call once repacked the first call's runs as if they were its own)."""
+    import os
+    import subprocess
+    import sys
+    import tarfile
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    root = Path(__file__).resolve().parents[2]
+    data = tmp_path / "data"
+    generate_dataset(data, garments=1, seed=0, frame=(192, 144), progress=False)
+    garment = next(p for p in data.iterdir() if p.is_dir()).name
+    out, work = tmp_path / "out", tmp_path / "work"
+    env = dict(os.environ, OUT=str(out), WORK=str(work), PY=sys.executable, DATA="data", GARMENTS=garment,
+               CROP="256", DEVICE="cpu", STEPS="2", METHODS="ours-no-gan", SCORE="0", PACK="weights")
+    script = str(root / "scripts" / "gpu_table.sh")
+    first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=300)
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert "training 1 runs (ours-no-gan) for 2 steps (given)" in (out / "gpu_table.log").read_text()
+    member = f"runs/{garment}/ours-no-gan/weights/latest.pt"
+    with tarfile.open(out / "weights-ours-no-gan.tar") as tar:
+        assert tar.getnames() == [str(Path(member).parent), member]
+        tar.extract(member, tmp_path / "unpacked")
+    ck = torch.load(tmp_path / "unpacked" / member, map_location="cpu", weights_only=False)
+    assert ck["config"]["garment"] == f"data/{garment}" and "train_state" not in ck
+    floats = [v for v in ck["generator"].values() if v.is_floating_point()]
+    assert floats and all(v.dtype == torch.float16 and torch.isfinite(v).all() for v in floats)
+    packed = (out / "weights-ours-no-gan.tar").stat().st_mtime_ns
+
+    again = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=60)
+    assert again.returncode == 2 and "already holds runs" in again.stderr
+    assert (out / "weights-ours-no-gan.tar").stat().st_mtime_ns == packed
+
+    broken = subprocess.run(["bash", script, "200"], cwd=tmp_path, capture_output=True, text=True, timeout=60,
+                            env=dict(env, WORK=str(tmp_path / "work2"), CROP="100"))
+    assert broken.returncode == 1                   # a run that fails is a failed lease, not a quiet empty table
+    assert "data.crop must be a multiple of 256" in (out / "gpu_table.log").read_text()
