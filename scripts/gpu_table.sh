@@ -7,11 +7,12 @@
 #   OUT=/tmp/gpu scripts/gpu_table.sh [BUDGET_S]      # data: data/hard640 (vtkiosk data synth ... --frame 640x480)
 #
 # Environment: DATA, GARMENTS, CROP (768: the largest grid multiple a 900 px padded frame holds), DEVICE (cuda),
-# PY (python3), WORK (a fresh /tmp/gpu_table.XXXXXX; a given one must not hold runs yet), MIN_STEPS (2500: below it the run drops no-tactile-gan to afford them),
-# MAX_STEPS (20000), METHODS (the three) and STEPS (skips the calibration), EXTRA (more `--set`s for every run),
-# PACK (weights sheets infer: what to pack beside the table and log), SCORE (1; 0 skips the on-device scoring: the
-# packed fp16 weights are scored elsewhere with `vtkiosk eval --compare`). Every stage has its own deadline inside
-# BUDGET_S (default 540), so the packing always runs.
+# PY (python3), WORK (a fresh /tmp/gpu_table.XXXXXX; a given one must not hold runs yet), MIN_STEPS (2500: below
+# it the run drops no-tactile-gan to afford them), MAX_STEPS (20000), METHODS (the three) and STEPS (skips the
+# calibration), EXTRA (more `--set`s for every run), PACK (weights sheets infer: what to pack beside the table and
+# log), SCORE (1; 0 skips the on-device scoring: the packed fp16 weights are scored elsewhere with `vtkiosk eval
+# --compare`, and training gets the scoring stages' share). Every stage has its own deadline inside BUDGET_S (default
+# 540), so the packing always runs; the exit status is 1 when a run failed.
 set -u
 START=$(date +%s)
 BUDGET=${1:-540}
@@ -97,7 +98,10 @@ fi
 train_all "$W/runs" "$STEPS" "$TRAIN_END"
 FAILED=0
 for g in $GARMENTS; do for m in $METHODS; do
-  [ -f "$W/runs/$g/$m/metrics.json" ] || { FAILED=$((FAILED + 1)); tail -n 5 "$W/runs/$g/$m.log" >> "$OUT/gpu_table.log"; }
+  if [ ! -f "$W/runs/$g/$m/metrics.json" ]; then
+    FAILED=$((FAILED + 1)); log "$g/$m: failed; its log ends:"; tail -n 5 "$W/runs/$g/$m.log" >> "$OUT/gpu_table.log"
+    continue
+  fi
   log "$g/$m: $($PY -c "import json; t=json.load(open('$W/runs/$g/$m/metrics.json'))['train']; \
 print(t['step'], 'steps', t['seconds_per_step'], 's/step', 'stopped early' if t['stopped_early'] else '')" 2>&1 | tail -n 1)"
 done; done
@@ -140,4 +144,4 @@ SHEETS=$(cd "$W" && ls table/sheet_* 2>/dev/null)
   tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
 done
 log "packed: $(ls -s "$OUT" | tr '\n' ' ')"
-[ "$FAILED" = 0 ] || { log "$FAILED run(s) failed: their logs' ends are above"; exit 1; }
+[ "$FAILED" = 0 ] || { log "$FAILED run(s) failed (above)"; exit 1; }
