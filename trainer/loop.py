@@ -189,8 +189,11 @@ class Trainer:
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
+        mid, at_mid = first + (end - first) // 2, None   # the steady step time leaves the first half's warm-up out
         self.stopped = False
         while self.step < end:
+            if self.step == mid and at_mid is None:
+                at_mid = self.train_seconds + time.perf_counter() - t0
             if should_stop is not None and self._agree_to_stop(should_stop()):
                 self.stopped = True
                 self.train_seconds += time.perf_counter() - t0
@@ -228,11 +231,13 @@ class Trainer:
             bar.close()
         self.train_seconds += time.perf_counter() - t0
         done = self.step - first
+        steady = (self.train_seconds - at_mid) / (self.step - mid) if at_mid is not None and self.step > mid else None
         summary = {"method": self.cfg.method, "garment": self.data.g.name, "data_profile": self.data.g.profile,
                    "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0], "step": self.step,
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
                    "train_seconds": round(self.train_seconds, 1), "steps_this_session": done,
                    "seconds_per_step": round(self.train_seconds / max(self.step, 1), 4),
+                   "seconds_per_step_steady": None if steady is None else round(steady, 4),
                    "val": self.val_history[-1] if self.val_history else None, "best_val_score": self.best,
                    "stopped_early": self.stopped, "machines": self.machines}
         if self.main:

@@ -182,7 +182,9 @@ def test_the_gpu_table_script_packs_fp16_weights_and_never_repacks_an_old_folder
     first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
                            timeout=300)
     assert first.returncode == 0, first.stdout + first.stderr
-    assert "training 1 runs (ours-no-gan) for 2 steps (given)" in (out / "gpu_table.log").read_text()
+    log = (out / "gpu_table.log").read_text()
+    assert "training 1 runs (ours-no-gan) for 2 steps (given)" in log
+    assert "deadlines: training 180 s" in log       # scored elsewhere: all but the packing's 20 s is training
     member = f"runs/{garment}/ours-no-gan/weights/latest.pt"
     with tarfile.open(out / "weights-ours-no-gan.tar") as tar:
         assert tar.getnames() == [str(Path(member).parent), member]
@@ -202,3 +204,37 @@ def test_the_gpu_table_script_packs_fp16_weights_and_never_repacks_an_old_folder
                             env=dict(env, WORK=str(tmp_path / "work2"), CROP="100"))
     assert broken.returncode == 1                   # a run that fails is a failed lease, not a quiet empty table
     assert "data.crop must be a multiple of 256" in (out / "gpu_table.log").read_text()
+
+
+def test_the_gpu_table_calibration_times_the_steady_steps_and_fits_the_schedule_to_the_budget(tmp_path):
+    """Without STEPS the script times a short run of every method side by side from its second half, and fixes one
+    schedule for all runs in 50-step units, capped by MAX_STEPS (the first steps' warm-up and 250-step units once
+    left a fifth of a lease's training time unused); each calibration run's record carries its steady step time."""
+    import json
+    import os
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    root = Path(__file__).resolve().parents[2]
+    generate_dataset(tmp_path / "data", garments=1, seed=0, frame=(192, 144), progress=False)
+    garment = next(p for p in (tmp_path / "data").iterdir() if p.is_dir()).name
+    out = tmp_path / "out"
+    env = dict(os.environ, OUT=str(out), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
+               GARMENTS=garment, CROP="256", DEVICE="cpu", CAL_STEPS="8", MAX_STEPS="50", METHODS="ours-no-gan",
+               SCORE="0", PACK="weights")
+    done = subprocess.run(["bash", str(root / "scripts" / "gpu_table.sh"), "300"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    log = (out / "gpu_table.log").read_text()
+    m = re.search(r"calibration: ([0-9.]+) s/step \(steady, \+10 %\) with all runs side by side; "
+                  r"training 1 runs \(ours-no-gan\) for (\d+) steps", log)
+    assert m, log
+    assert float(m.group(1)) > 0 and int(m.group(2)) == 50
+    cal = json.loads((tmp_path / "work" / "cal" / garment / "ours-no-gan" / "metrics.json").read_text())["train"]
+    assert cal["step"] == 8 and 0 < cal["seconds_per_step_steady"] <= 2 * cal["seconds_per_step"]
+    assert abs(float(m.group(1)) - 1.1 * cal["seconds_per_step_steady"]) < 1e-3
+    run = json.loads((tmp_path / "work" / "runs" / garment / "ours-no-gan" / "metrics.json").read_text())["train"]
+    assert run["step"] == 50 and not run["stopped_early"]
