@@ -75,8 +75,8 @@ if [ -n "${STEPS:-}" ]; then
   N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
   log "training $N runs ($METHODS) for $STEPS steps (given)"
 else
-  train_all "$W/cal" "${CAL_STEPS:-80}" $((BUDGET * 15 / 100)) --set train.val_every=1000 --set train.sample_every=1000 \
-    --set train.ckpt_every=1000 --set loss.clip_start=0
+  train_all "$W/cal" "${CAL_STEPS:-80}" $((BUDGET * 15 / 100)) --set train.val_every=1000 \
+    --set train.sample_every=1000 --set train.ckpt_every=1000 --set loss.clip_start=0
   OK=""
   for m in $METHODS; do
     if ls "$W"/cal/*/"$m"/metrics.json > /dev/null 2>&1; then OK="$OK $m"; else
@@ -86,7 +86,8 @@ else
   METHODS=${OK# }
   SPS=$($PY -c "import json, sys, pathlib; t = [json.loads(p.read_text())['train'] \
 for p in pathlib.Path(sys.argv[1]).glob('*/*/metrics.json')]; \
-v = [1.1 * (r.get('seconds_per_step_steady') or r['seconds_per_step']) for r in t]; print(round(max(v), 4) if v else '')" "$W/cal")
+v = [1.1 * (r.get('seconds_per_step_steady') or r['seconds_per_step']) for r in t]; \
+print(round(max(v), 4) if v else '')" "$W/cal")
   if [ -z "$SPS" ] || [ -z "$METHODS" ]; then
     log "calibration failed; its logs:"; tail -n 30 "$W"/cal/*/*.log >> "$OUT/gpu_table.log"
     tar -C "$W" -czf "$OUT/calibration_logs.tar.gz" cal; exit 1
@@ -97,7 +98,8 @@ v = [1.1 * (r.get('seconds_per_step_steady') or r['seconds_per_step']) for r in 
     METHODS="ours ours-no-gan"; N=$((N * 2 / 3))   # two methods: each run gets 3/2 of its share of the GPU
     STEPS=$($PY -c "s=int(($TRAIN_END-$(el)-30)/($SPS*2/3))//50*50; print(max(50, min(s, $MAX_STEPS)))")
   fi
-  log "calibration: ${SPS} s/step (steady, +10 %) with all runs side by side; training $N runs ($METHODS) for $STEPS steps"
+  log "calibration: ${SPS} s/step (steady, +10 %) with all runs side by side; training $N runs ($METHODS)\
+ for $STEPS steps"
 fi
 
 # 2. the runs (a run still going at the deadline gets SIGTERM, saves its latest checkpoint, and is marked so)

@@ -189,7 +189,8 @@ class Trainer:
         self.method.train()
         t0 = time.perf_counter()
         first = self.step
-        mid, at_mid = first + (end - first) // 2, None   # the steady step time leaves the first half's warm-up out
+        # the steady step time: the second half's steps, without the first half's warm-up or the end's checkpoint
+        mid, at_mid, at_last = first + (end - first) // 2, None, None
         self.stopped = False
         while self.step < end:
             if self.step == mid and at_mid is None:
@@ -209,6 +210,8 @@ class Trainer:
             self.method.after_step(self.step)
             logs["lr_factor"] = factor
             self.step += 1
+            if self.step == end:
+                at_last = self.train_seconds + time.perf_counter() - t0
             if self.step % t.log_every == 0 or self.step == end:
                 if self.dist is not None:
                     logs = {k: average_scalar(x, self.dist.world) for k, x in logs.items()}
@@ -231,7 +234,10 @@ class Trainer:
             bar.close()
         self.train_seconds += time.perf_counter() - t0
         done = self.step - first
-        steady = (self.train_seconds - at_mid) / (self.step - mid) if at_mid is not None and self.step > mid else None
+        if at_mid is not None and self.step > mid:
+            steady = ((at_last if at_last is not None else self.train_seconds) - at_mid) / (self.step - mid)
+        else:
+            steady = None
         summary = {"method": self.cfg.method, "garment": self.data.g.name, "data_profile": self.data.g.profile,
                    "pixel_pitch_mm": dataset_pitch_mm(self.data.g)[0], "step": self.step,
                    "crop": self.data.side, "friction_scale": self.data.friction_scale, **self.method.info,
