@@ -35,7 +35,8 @@ export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 TRAIN_END=$((BUDGET * 64 / 100)); EVAL_END=$((BUDGET * 84 / 100)); TABLE_END=$((BUDGET * 94 / 100))
 # scored elsewhere: training gets all but a fixed reserve for the packing (about 10 s measured; 20 s kept) and the
 # inference timing (its own 25 s timeout), so a longer budget is all training
-RESERVE=20; [[ " ${PACK:-weights sheets infer} " == *" infer "* ]] && RESERVE=45
+PACK=${PACK:-weights sheets infer}
+RESERVE=20; [[ " $PACK " == *" infer "* ]] && RESERVE=45
 [ "${SCORE:-1}" = 1 ] || { TRAIN_END=$((BUDGET - RESERVE)); EVAL_END=$TRAIN_END; TABLE_END=$TRAIN_END; }
 mkdir -p "$OUT" "$W"
 el() { echo $(( $(date +%s) - START )); }
@@ -44,7 +45,6 @@ log() { echo "[$(el) s] $*" | tee -a "$OUT/gpu_table.log"; }
 
 COMMON="--data $DATA --preset cpu --set data.crop=$CROP --set train.threads=1 --set train.progress=false \
 --set train.device=$DEVICE --set train.ema=0.999 ${EXTRA:-}"
-PACK=${PACK:-weights sheets infer}
 recipe() {   # the full table's recipe of each method (docs/training.md)
   case $1 in
     ours|no-tactile-gan) echo "--method $1 --set loss.tactile_r1=10 --set loss.diffaug=color,translation,cutout" ;;

@@ -193,7 +193,7 @@ class Trainer:
         mid, at_mid, at_last = first + (end - first) // 2, None, None
         self.stopped = False
         while self.step < end:
-            if self.step == mid and at_mid is None:
+            if self.step == mid:
                 at_mid = self.train_seconds + time.perf_counter() - t0
             if should_stop is not None and self._agree_to_stop(should_stop()):
                 self.stopped = True
