@@ -184,6 +184,35 @@ def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth,
     assert all(torch.equal(v, raw[k]) for k, v in raw_net.state_dict().items())
 
 
+def test_a_stop_on_request_mid_interval_resumes_bit_for_bit_with_the_close_pair_recipe(synth, tmp_path):
+    """The GPU table's `ours` runs stop at the lease's deadline (SIGTERM's flag) between checkpoints and resume in the
+    next call; the stop must save a state the resume continues exactly, validation and sample sheets in between."""
+    import dataclasses
+
+    def cfg():
+        c = load_config("tiny", overrides=["train.steps=6", "train.deterministic=true", "train.ckpt_every=3",
+                                           "train.val_every=2", "train.sample_every=2", "train.ema=0.999",
+                                           "loss.tactile_r1=10", "loss.diffaug=color,translation,cutout"])
+        return dataclasses.replace(c, method="ours")
+    full = Trainer(cfg(), synth, tmp_path / "full")
+    full.run()
+    part = Trainer(cfg(), synth, tmp_path / "part")
+    part.run(should_stop=lambda: part.step >= 4)
+    assert part.stopped and part.step == 4
+    assert torch.load(tmp_path / "part" / "checkpoints" / "latest.pt", weights_only=False)["step"] == 4
+    resumed = Trainer(cfg(), synth, tmp_path / "part", resume=True)
+    resumed.run()
+    a, b = full.method.state_dict(), resumed.method.state_dict()
+    for key in ("generator", "ema"):
+        for k, v in a[key].items():
+            assert torch.equal(v, b[key][k]), (key, k)
+    for name in a["nets"]:
+        for k, v in a["nets"][name].items():
+            assert torch.equal(v, b["nets"][name][k]), (name, k)
+    assert [h["g_total"] for h in full.history] == [h["g_total"] for h in resumed.history]
+    assert any("d_tactile_r1" in h for h in full.history)   # the penalty ran: the double backward is resumed too
+
+
 def test_raw_weights_need_the_training_state_and_a_known_name(synth, tmp_path):
     cfg = load_config("tiny", overrides=["train.steps=1", "train.threads=1"])
     Trainer(cfg, synth, tmp_path / "r").run()
