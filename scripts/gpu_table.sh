@@ -12,8 +12,10 @@
 # (skips the calibration), EXTRA (more `--set`s for every run), PACK (weights sheets infer: what to pack beside the
 # table and log), SCORE (1; 0 skips the on-device scoring: the packed fp16 weights are scored elsewhere with
 # `vtkiosk eval --compare`, and training gets all of BUDGET_S but the packing's reserve, 20 s, 45 s with infer).
-# Every stage has its own deadline inside BUDGET_S (default 540), so the packing always runs; the exit status is 1
-# when a run failed.
+# RESUME (1: continue, in the WORK folder a deadline left behind, every run short of STEPS, which it needs; finished
+# runs are left as they are and all are scored and packed as one table; a warm machine keeps the folder, which the
+# log names). Every stage has its own deadline inside BUDGET_S (default 540), so the packing always runs; the exit
+# status is 1 when a run failed.
 set -u
 START=$(date +%s)
 BUDGET=${1:-540}
@@ -24,9 +26,15 @@ GARMENTS=${GARMENTS:-DenimShorts CorduroyTrousers KnitJacket SatinShirt}
 CROP=${CROP:-768}
 DEVICE=${DEVICE:-cuda}
 W=${WORK:-$(mktemp -d /tmp/gpu_table.XXXXXX)}
-# a warm machine keeps the last call's folder: its finished runs would be packed again as this call's
-if [ -e "$W/runs" ] || [ -e "$W/cal" ]; then
-  echo "gpu_table.sh: $W already holds runs; give another WORK (or none, for a fresh folder)" >&2; exit 2
+# a warm machine keeps the last call's folder: its finished runs would be packed again as this call's, unless the
+# call says it continues them
+if [ "${RESUME:-0}" = 1 ]; then
+  if [ -z "${WORK:-}" ] || [ ! -d "$W/runs" ] || [ -z "${STEPS:-}" ]; then
+    echo "gpu_table.sh: RESUME=1 needs WORK, a folder holding an earlier call's runs, and that call's STEPS" >&2; exit 2
+  fi
+elif [ -e "$W/runs" ] || [ -e "$W/cal" ]; then
+  echo "gpu_table.sh: $W already holds runs; give another WORK (or none, for a fresh folder), or RESUME=1 to continue them" >&2
+  exit 2
 fi
 MIN_STEPS=${MIN_STEPS:-2500}
 MAX_STEPS=${MAX_STEPS:-20000}
@@ -55,17 +63,26 @@ train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method
   local root=$1 steps=$2 deadline=$3; shift 3
   for g in $GARMENTS; do for m in $METHODS; do
     mkdir -p "$root/$g"
+    local more=()
+    if [ "${RESUME:-0}" = 1 ]; then   # a finished run is left alone; a stopped one continues from its checkpoint
+      [ "$(run_step "$root/$g/$m")" -ge "$steps" ] && continue
+      [ -e "$root/$g/$m/checkpoints/latest.pt" ] && more=(--resume)
+      log "$g/$m: ${more[*]:-starting} at step $(run_step "$root/$g/$m") of $steps"
+    fi
     timeout -s TERM "$(left "$deadline")" $PY -m vtkiosk train $COMMON $(recipe "$m") --garment "$g" \
-      --steps "$steps" "$@" --out "$root/$g/$m" > "$root/$g/$m.log" 2>&1 &
+      --steps "$steps" "$@" "${more[@]}" --out "$root/$g/$m" >> "$root/$g/$m.log" 2>&1 &
   done; done
   wait
+}
+run_step() {   # the step a run's record reached (0: none yet)
+  $PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train']['step'])" "$1/metrics.json" 2>/dev/null || echo 0
 }
 
 { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
   $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.is_available())"
   lscpu | grep -m1 "Model name"; nproc; } > "$OUT/machine.txt" 2>&1
 log "machine: $(tr '\n' ' ' < "$OUT/machine.txt")"
-log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_END} s of ${BUDGET} s"
+log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_END} s of ${BUDGET} s; work folder $W"
 
 # 1. the step time of all runs side by side (CAL_STEPS, 80: the second half's, so the warm-up is left out; the CLIP
 #    discriminator on from the start, so its step is in the time and its code has run here before the real runs;

@@ -206,6 +206,63 @@ def test_the_gpu_table_script_packs_fp16_weights_and_never_repacks_an_old_folder
     assert "data.crop must be a multiple of 256" in (out / "gpu_table.log").read_text()
 
 
+def test_the_gpu_table_script_continues_runs_a_deadline_stopped_and_leaves_finished_ones(tmp_path):
+    """RESUME=1 on a warm machine's WORK folder: a run the deadline stopped short of STEPS continues from its
+    checkpoint to STEPS, a finished run is not retrained, and both are packed (a lease once lost six 2 000-step
+    `ours` runs stopped at about 1 570 steps, whose fp16 weights could not be resumed elsewhere)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import tarfile
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    from trainer.loop import Trainer
+    root = Path(__file__).resolve().parents[2]
+    data = tmp_path / "data"
+    generate_dataset(data, garments=2, seed=0, frame=(192, 144), progress=False)
+    done_g, stopped_g = sorted(p.name for p in data.iterdir() if p.is_dir())
+    out, work = tmp_path / "out", tmp_path / "work"
+    env = dict(os.environ, OUT=str(out), WORK=str(work), PY=sys.executable, DATA="data", GARMENTS=done_g,
+               CROP="256", DEVICE="cpu", STEPS="4", METHODS="ours-no-gan", SCORE="0", PACK="weights")
+    script = str(root / "scripts" / "gpu_table.sh")
+    first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=300)
+    assert first.returncode == 0, first.stdout + first.stderr
+    # the other garment as the deadline leaves a run: stopped at step 2 of 4, with the script's own command line
+    overrides = ["data.crop=256", "train.threads=1", "train.progress=false", "train.device=cpu", "train.ema=0.999",
+                 "optim.lr_policy=linear", "loss.diffaug=", "train.steps=4"]
+    stopped = work / "runs" / stopped_g / "ours-no-gan"
+    tr = Trainer(load_config("cpu", overrides=overrides, method="ours-no-gan"), data / stopped_g, stopped)
+    tr.run(should_stop=lambda: tr.step >= 2)
+    assert tr.stopped and tr.step == 2
+    finished = work / "runs" / done_g / "ours-no-gan" / "checkpoints" / "latest.pt"
+    kept = finished.stat().st_mtime_ns
+
+    refused = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=dict(env, GARMENTS=f"{done_g} {stopped_g}"),
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and "RESUME=1 to continue them" in refused.stderr
+    no_steps = {k: v for k, v in env.items() if k != "STEPS"}
+    refused = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=dict(no_steps, RESUME="1"),
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and "RESUME=1 needs WORK" in refused.stderr
+
+    again = subprocess.run(["bash", script, "200"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                           env=dict(env, RESUME="1", GARMENTS=f"{done_g} {stopped_g}"))
+    assert again.returncode == 0, again.stdout + again.stderr
+    log = (out / "gpu_table.log").read_text()
+    assert f"{stopped_g}/ours-no-gan: --resume at step 2 of 4" in log and f"{done_g}/ours-no-gan: --resume" not in log
+    assert finished.stat().st_mtime_ns == kept
+    ck = torch.load(stopped / "checkpoints" / "latest.pt", map_location="cpu", weights_only=False)
+    assert ck["step"] == 4
+    record = json.loads((stopped / "metrics.json").read_text())["train"]
+    assert record["step"] == 4 and record["steps_this_session"] == 2 and not record["stopped_early"]
+    with tarfile.open(out / "weights-ours-no-gan.tar") as tar:
+        names = set(tar.getnames())
+    assert {f"runs/{g}/ours-no-gan/weights/latest.pt" for g in (done_g, stopped_g)} <= names
+
+
 def test_the_gpu_table_calibration_times_the_steady_steps_and_fits_the_schedule_to_the_budget(tmp_path):
     """Without STEPS the script times a short run of every method side by side from its second half, and fixes one
     schedule for all runs in 50-step units, capped by MAX_STEPS (the first steps' warm-up and 250-step units once
