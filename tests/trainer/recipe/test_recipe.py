@@ -187,13 +187,10 @@ def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth,
 def test_a_stop_on_request_mid_interval_resumes_bit_for_bit_with_the_close_pair_recipe(synth, tmp_path):
     """The GPU table's `ours` runs stop at the lease's deadline (SIGTERM's flag) between checkpoints and resume in the
     next call; the stop must save a state the resume continues exactly, validation and sample sheets in between."""
-    import dataclasses
-
     def cfg():
-        c = load_config("tiny", overrides=["train.steps=6", "train.deterministic=true", "train.ckpt_every=3",
-                                           "train.val_every=2", "train.sample_every=2", "train.ema=0.999",
-                                           "loss.tactile_r1=10", "loss.diffaug=color,translation,cutout"])
-        return dataclasses.replace(c, method="ours")
+        return load_config("tiny", method="ours", overrides=[
+            "train.steps=6", "train.deterministic=true", "train.ckpt_every=3", "train.val_every=2",
+            "train.sample_every=2", "train.ema=0.999", "loss.tactile_r1=10", "loss.diffaug=color,translation,cutout"])
     full = Trainer(cfg(), synth, tmp_path / "full")
     full.run()
     part = Trainer(cfg(), synth, tmp_path / "part")
