@@ -160,28 +160,37 @@ def test_the_r1_probe_recomputes_the_run_s_own_penalty(tmp_path):
     assert (out / "metrics.json").exists()          # an ordinary run directory besides
 
 
+def _gpu_table_lease(tmp_path, *, garments, steps):
+    """scripts/gpu_table.sh's first call on the CPU: `garments` synthetic garments, the first trained `steps` steps
+    with `ours-no-gan`; returns the garments' names, the call's environment and the script."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    generate_dataset(tmp_path / "data", garments=garments, seed=0, frame=(192, 144), progress=False)
+    names = sorted(p.name for p in (tmp_path / "data").iterdir() if p.is_dir())
+    env = dict(os.environ, OUT=str(tmp_path / "out"), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
+               GARMENTS=names[0], CROP="256", DEVICE="cpu", STEPS=str(steps), METHODS="ours-no-gan", SCORE="0",
+               PACK="weights")
+    script = str(Path(__file__).resolve().parents[2] / "scripts" / "gpu_table.sh")
+    first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=300)
+    assert first.returncode == 0, first.stdout + first.stderr
+    return names, env, script
+
+
 def test_the_gpu_table_script_packs_fp16_weights_and_never_repacks_an_old_folder(tmp_path):
     """scripts/gpu_table.sh, the prepared lease, end to end on the CPU (two steps): it packs each run's generator in
     fp16 with a garment path free of the machine's own folders, and it refuses a WORK folder that already holds runs
     (on a warm machine a second call once repacked the first call's runs as if they were its own)."""
-    import os
     import subprocess
-    import sys
     import tarfile
     from pathlib import Path
 
-    from trainer.data.synthetic import generate_dataset
-    root = Path(__file__).resolve().parents[2]
-    data = tmp_path / "data"
-    generate_dataset(data, garments=1, seed=0, frame=(192, 144), progress=False)
-    garment = next(p for p in data.iterdir() if p.is_dir()).name
-    out, work = tmp_path / "out", tmp_path / "work"
-    env = dict(os.environ, OUT=str(out), WORK=str(work), PY=sys.executable, DATA="data", GARMENTS=garment,
-               CROP="256", DEVICE="cpu", STEPS="2", METHODS="ours-no-gan", SCORE="0", PACK="weights")
-    script = str(root / "scripts" / "gpu_table.sh")
-    first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                           timeout=300)
-    assert first.returncode == 0, first.stdout + first.stderr
+    (garment,), env, script = _gpu_table_lease(tmp_path, garments=1, steps=2)
+    out = tmp_path / "out"
     log = (out / "gpu_table.log").read_text()
     assert "training 1 runs (ours-no-gan) for 2 steps (given)" in log
     assert "deadlines: training 180 s" in log       # scored elsewhere: all but the packing's 20 s is training
@@ -211,25 +220,12 @@ def test_the_gpu_table_script_continues_runs_a_deadline_stopped_and_leaves_finis
     checkpoint to STEPS, a finished run is not retrained, and both are packed (a lease once lost six 2 000-step
     `ours` runs stopped at about 1 570 steps, whose fp16 weights could not be resumed elsewhere)."""
     import json
-    import os
     import subprocess
-    import sys
     import tarfile
-    from pathlib import Path
 
-    from trainer.data.synthetic import generate_dataset
     from trainer.loop import Trainer
-    root = Path(__file__).resolve().parents[2]
-    data = tmp_path / "data"
-    generate_dataset(data, garments=2, seed=0, frame=(192, 144), progress=False)
-    done_g, stopped_g = sorted(p.name for p in data.iterdir() if p.is_dir())
-    out, work = tmp_path / "out", tmp_path / "work"
-    env = dict(os.environ, OUT=str(out), WORK=str(work), PY=sys.executable, DATA="data", GARMENTS=done_g,
-               CROP="256", DEVICE="cpu", STEPS="4", METHODS="ours-no-gan", SCORE="0", PACK="weights")
-    script = str(root / "scripts" / "gpu_table.sh")
-    first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                           timeout=300)
-    assert first.returncode == 0, first.stdout + first.stderr
+    (done_g, stopped_g), env, script = _gpu_table_lease(tmp_path, garments=2, steps=4)
+    data, out, work = tmp_path / "data", tmp_path / "out", tmp_path / "work"
     # the other garment as the deadline leaves a run: stopped at step 2 of 4, with the script's own command line
     overrides = ["data.crop=256", "train.threads=1", "train.progress=false", "train.device=cpu", "train.ema=0.999",
                  "optim.lr_policy=linear", "loss.diffaug=", "train.steps=4"]

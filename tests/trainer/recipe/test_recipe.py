@@ -158,6 +158,18 @@ def synth(tmp_path_factory):
     return next(p for p in root.iterdir() if p.is_dir())
 
 
+def _same_state(full, resumed, *, nets=False):
+    """An uninterrupted run and a resumed one end in the same weights (and discriminators) with the same losses."""
+    a, b = full.method.state_dict(), resumed.method.state_dict()
+    for key in ("generator", "ema"):
+        for k, v in a[key].items():
+            assert torch.equal(v, b[key][k]), (key, k)
+    for name in a["nets"] if nets else ():
+        for k, v in a["nets"][name].items():
+            assert torch.equal(v, b["nets"][name][k]), (name, k)
+    assert [h["g_total"] for h in full.history] == [h["g_total"] for h in resumed.history]
+
+
 def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth, tmp_path):
     def cfg():
         return load_config("tiny", overrides=["train.steps=4", "train.deterministic=true", "train.ckpt_every=2",
@@ -168,11 +180,7 @@ def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth,
     part.run(until=2)
     resumed = Trainer(cfg(), synth, tmp_path / "part", resume=True)
     resumed.run()
-    a, b = full.method.state_dict(), resumed.method.state_dict()
-    for key in ("generator", "ema"):
-        for k, v in a[key].items():
-            assert torch.equal(v, b[key][k]), (key, k)
-    assert [h["g_total"] for h in full.history] == [h["g_total"] for h in resumed.history]
+    _same_state(full, resumed)
     assert "t_tex" in full.history[-1] and full.history[-1]["lr_factor"] < 1.0
     net, _ = load_generator(tmp_path / "full", "latest")
     ema = full.method.ema.model.state_dict()
@@ -199,14 +207,7 @@ def test_a_stop_on_request_mid_interval_resumes_bit_for_bit_with_the_close_pair_
     assert torch.load(tmp_path / "part" / "checkpoints" / "latest.pt", weights_only=False)["step"] == 4
     resumed = Trainer(cfg(), synth, tmp_path / "part", resume=True)
     resumed.run()
-    a, b = full.method.state_dict(), resumed.method.state_dict()
-    for key in ("generator", "ema"):
-        for k, v in a[key].items():
-            assert torch.equal(v, b[key][k]), (key, k)
-    for name in a["nets"]:
-        for k, v in a["nets"][name].items():
-            assert torch.equal(v, b["nets"][name][k]), (name, k)
-    assert [h["g_total"] for h in full.history] == [h["g_total"] for h in resumed.history]
+    _same_state(full, resumed, nets=True)
     assert any("d_tactile_r1" in h for h in full.history)   # the penalty ran: the double backward is resumed too
 
 
