@@ -65,9 +65,10 @@ train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method
     mkdir -p "$root/$g"
     local more=()
     if [ "${RESUME:-0}" = 1 ]; then   # a finished run is left alone; a stopped one continues from its checkpoint
-      [ "$(run_step "$root/$g/$m")" -ge "$steps" ] && continue
+      local at; at=$(run_step "$root/$g/$m")
+      [ "$at" -ge "$steps" ] && continue
       [ -e "$root/$g/$m/checkpoints/latest.pt" ] && more=(--resume)
-      log "$g/$m: ${more[*]:-starting} at step $(run_step "$root/$g/$m") of $steps"
+      log "$g/$m: ${more[*]:-starting} at step $at of $steps"
     fi
     timeout -s TERM "$(left "$deadline")" $PY -m vtkiosk train $COMMON $(recipe "$m") --garment "$g" \
       --steps "$steps" "$@" "${more[@]}" --out "$root/$g/$m" >> "$root/$g/$m.log" 2>&1 &
