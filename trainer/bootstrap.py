@@ -20,7 +20,12 @@ def mse_to_psnr(mse: np.ndarray | float) -> np.ndarray | float:
     return 10.0 * np.log10(1.0 / np.maximum(mse, PSNR_FLOOR_MSE))
 
 
+def psnr_to_mse(psnr: np.ndarray | float) -> np.ndarray | float:
+    return 10.0 ** (-np.asarray(psnr, np.float64) / 10.0)
+
+
 TRANSFORMS: dict[str, Callable] = {"visual_psnr": mse_to_psnr}
+INVERSES: dict[str, Callable] = {"visual_psnr": psnr_to_mse}
 
 
 @dataclass
@@ -53,6 +58,14 @@ def reduce(metric: str, num: np.ndarray | float, den: np.ndarray | float) -> np.
     ratio = np.divide(num, den, out=np.full(np.broadcast(num, den).shape, np.nan), where=den > 0)
     out = TRANSFORMS.get(metric, lambda x: x)(ratio)
     return float(out) if np.ndim(out) == 0 else out
+
+
+def single_unit(metric: str, v: float) -> Units:
+    """A run known only by its score (a stored table keeps no per-unit sums): one unit whose value is `v`, so a
+    bootstrap over it resamples garments and seeds alone."""
+    if not np.isfinite(v):
+        raise ValueError(f"{metric}: a score must be finite; got {v}")
+    return Units([0], [float(INVERSES.get(metric, lambda x: x)(v))], [1.0])
 
 
 def value(metric: str, u: Units) -> float:

@@ -40,6 +40,8 @@ DIFF_METRICS = ("visual_psnr", "visual_ssim", "visual_l1", "visual_fbsifid_unsee
                 "full_friction_mae", "full_friction_mae_outside", "full_fbsifid_unseen")
 COLUMNS = VISUAL_COLUMNS + TACTILE_COLUMNS
 HEADERS = dict(COLUMNS)
+UNITS_RESAMPLED = ("held-out touches (tactile patches), 32 px blocks (visual, full field) or unseen sketches "
+                   "(FB-SIFID unseen), then garments, then each method's seeds")
 
 
 def _gap(r: dict, k: str):
@@ -109,7 +111,8 @@ def _section(title: str, cols: list[tuple[str, str]], methods: dict[str, list[di
         {"mean": {m: s[0] for m, s in rstats.items()}, "sd": {m: s[1] for m, s in rstats.items()}, "best": best}
 
 
-def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") -> tuple[str, dict]:
+def table(results: list[dict], diffs: dict | None = None, ours: str = "ours", *,
+          resampled: str = UNITS_RESAMPLED) -> tuple[str, dict]:
     """Mean per method over its runs (garments, seeds); with several runs a cell reads `mean ± sd` (sample sd).
     Best method mean per column in bold (reference rows are never bold: the oracle is not a competitor). `gap`
     columns: mean over runs of (flat - method) / (flat - oracle) on the same garment."""
@@ -129,7 +132,7 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours") ->
     trained_on = machines(results)
     md += "\n" + machines_markdown(trained_on)
     if diffs:
-        md += "\n" + ci_table(diffs, ours)
+        md += "\n" + ci_table(diffs, ours, resampled)
     means = {m: mv.get(m, {}) | mt.get(m, {}) for m in by_method}
     gaps = {m: {k[4:]: v for k, v in row.items() if k.startswith("gap:")} for m, row in means.items()}
     means = {m: {k: v for k, v in row.items() if not k.startswith("gap:")} for m, row in means.items()}
@@ -180,15 +183,13 @@ def machines_markdown(trained_on: dict) -> str:
     return line + "\n"
 
 
-def ci_table(diffs: dict[str, dict[str, dict]], ours: str) -> str:
+def ci_table(diffs: dict[str, dict[str, dict]], ours: str, resampled: str = UNITS_RESAMPLED) -> str:
     """"ours - X [lo, hi]" per method or reference X and metric (paired bootstrap, 95 %)."""
     metrics = [k for k in DIFF_METRICS if any(k in d for d in diffs.values())]
     if not metrics:
         return ""
     lines = [f"### {ours} − X, paired bootstrap 95 % interval", "",
-             "Resampled: held-out touches (tactile patches), 32 px blocks (visual, full field) or unseen sketches "
-             "(FB-SIFID unseen), then garments, "
-             "then each method's seeds. An interval that excludes 0 orders the two; for ↓ metrics a negative "
+             f"Resampled: {resampled}. An interval that excludes 0 orders the two; for ↓ metrics a negative "
              f"difference means {ours} is better.", "",
              "| X | " + " | ".join(HEADERS[k] for k in metrics) + " |", "|---|" + "---|" * len(metrics)]
     for x, row in diffs.items():

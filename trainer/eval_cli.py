@@ -1,4 +1,4 @@
-"""`vtkiosk eval --run RUN [--json OUT]` and `vtkiosk eval --compare RUN... --out DIR`. Light imports; torch is
+"""`vtkiosk eval --run RUN [--json OUT]`, `vtkiosk eval --compare RUN... --out DIR` and `--pool TABLE.json...`. Light imports; torch is
 imported inside `main`."""
 from __future__ import annotations
 
@@ -19,6 +19,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                       help="several runs: table + sheets; LABEL=RUN names a run's row LABEL instead of its method "
                            "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10); RUN@raw "
                            "scores the run's raw weights, in rows named <method>-raw")
+    mode.add_argument("--pool", nargs="+", type=Path, metavar="TABLE.json",
+                      help="one comparison from stored tables (compare.json of --compare), for runs whose weights "
+                           "are gone: each run counts by its score, so intervals resample garments and seeds only")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
@@ -40,6 +43,18 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     if args.bootstrap < 100:
         parser.error(f"--bootstrap must be at least 100 for a 95 % interval; got {args.bootstrap}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if args.pool is not None:
+        from trainer.pool import PoolError, pool
+        try:
+            md, data = pool(args.pool, args.out, ours=args.ours, n_boot=args.bootstrap)
+        except PoolError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 2
+        if args.json is not None:
+            args.json.write_text(json.dumps(data, indent=2))
+        print(md)
+        print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}")
+        return 0
     import torch
     torch.set_num_threads(min(torch.get_num_threads(), 4))
     if args.run is not None:

@@ -1,0 +1,107 @@
+"""`vtkiosk eval --pool`: stored tables pooled into one comparison. Point estimates are exactly what the tables
+hold, a run in two tables counts once, two different runs under one name are refused, and bad files say which."""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trainer.bootstrap import single_unit, value
+from trainer.eval_cli import main
+from trainer.pool import PoolError, load_runs, pool
+
+ROOT = Path(__file__).resolve().parents[2]
+RUN5 = ROOT / "docs/compare_gpu/h100-768-2000/compare.json"
+
+
+def _run(method: str, garment: str, seed: int, outside: float, psnr: float = 25.0) -> dict:
+    return {"method": method, "garment": garment, "seed": seed, "step": 2000, "crop": 768, "weights": "average",
+            "checkpoint": "latest", "full_angle_deg_outside": outside, "full_fbsifid_unseen": outside / 100,
+            "full_angle_deg": outside, "visual_psnr": psnr,
+            "gap_closed": {"full_angle_deg": (10.0 - outside) / 8.0},
+            "references": {"flat": {"full_angle_deg_outside": 10.0, "full_angle_deg": 10.0},
+                           "oracle": {"full_angle_deg_outside": 2.0, "full_angle_deg": 2.0}}}
+
+
+def _table(path: Path, runs: list[dict]) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"runs": runs}))
+    return path
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["visual_psnr", "full_angle_deg_outside", "visual_ssim"]),
+       st.floats(-50, 120, allow_nan=False))
+def test_a_single_unit_reduces_to_the_score_it_was_made_from(metric, v):
+    """Up to the 120 dB PSNR the scoring reports for identical images (its floor on the MSE)."""
+    assert value(metric, single_unit(metric, v)) == pytest.approx(v, rel=1e-12, abs=1e-9)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_score_is_refused(bad):
+    with pytest.raises(ValueError, match="finite"):
+        single_unit("full_angle_deg_outside", bad)
+
+
+def test_two_tables_pool_into_one_with_a_shared_run_counted_once(tmp_path):
+    """Seeds 0-2 in one table, 1-3 in another (seed 1 and 2 shared): four seeds a side, means over those four."""
+    ours = {0: 5.0, 1: 5.5, 2: 4.5, 3: 5.2}
+    base = {0: 6.0, 1: 6.1, 2: 5.9, 3: 6.3}
+    runs = lambda seeds: [_run("ours", g, s, ours[s] + i) for i, g in enumerate("AB") for s in seeds] + \
+        [_run("base", g, s, base[s] + i) for i, g in enumerate("AB") for s in seeds]
+    a = _table(tmp_path / "a/compare.json", runs([0, 1, 2]))
+    b = _table(tmp_path / "b/compare.json", runs([1, 2, 3]))
+    assert len(load_runs([a, b])) == 16
+    md, data = pool([a, b], tmp_path / "out", n_boot=400)
+    d = data["differences"]["rows"]["base"]["full_angle_deg_outside"]
+    want = np.mean(list(ours.values())) - np.mean(list(base.values()))
+    assert d["diff"] == pytest.approx(want) and d["lo"] <= d["diff"] <= d["hi"] and d["hi"] < 0
+    assert data["target"]["garments"][0]["runs"] == {"ours": 4, "base": 4}
+    assert data["pooled_from"] == [str(a), str(b)]
+    assert "Pooled from 2 stored table(s)" in md and "places within a run are not resampled" in md
+    assert (tmp_path / "out/compare.md").read_text() == md
+    assert json.loads((tmp_path / "out/compare.json").read_text())["mean"]["ours"]["full_angle_deg_outside"] == \
+        pytest.approx(np.mean(list(ours.values())) + 0.5)
+
+
+def test_two_different_runs_under_one_name_are_refused(tmp_path):
+    a = _table(tmp_path / "a.json", [_run("ours", "A", 0, 5.0)])
+    b = _table(tmp_path / "b.json", [_run("ours", "A", 0, 5.4)])
+    with pytest.raises(PoolError, match="also in .*a.json with other scores"):
+        load_runs([a, b])
+
+
+@pytest.mark.parametrize("content, message", [
+    ("{not json", "cannot read a comparison table"),
+    ('{"mean": {}}', "no 'runs' list"),
+    ('{"runs": [{"garment": "A"}]}', "run 0 has no method and garment"),
+    ('{"runs": [{"method": "ours", "garment": "A", "full_angle_deg_outside": "7"}]}', "has no finite score"),
+])
+def test_a_bad_table_is_named_with_what_is_wrong_and_the_cli_exits_2(tmp_path, capsys, content, message):
+    bad = tmp_path / "bad.json"
+    bad.write_text(content)
+    with pytest.raises(PoolError, match=message):
+        load_runs([bad])
+    assert main(["--pool", str(bad), "--out", str(tmp_path / "out")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_missing_table_is_named(tmp_path):
+    with pytest.raises(PoolError, match="missing.json: cannot read"):
+        load_runs([tmp_path / "missing.json"])
+
+
+def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
+    """The stored runs' scores reproduce the hierarchical table's differences exactly; only intervals differ."""
+    stored = json.loads(RUN5.read_text())
+    _, data = pool([RUN5], tmp_path / "out", n_boot=200)
+    for x, row in stored["differences"]["rows"].items():
+        for k, d in row.items():
+            assert data["differences"]["rows"][x][k]["diff"] == pytest.approx(d["diff"], rel=1e-9, abs=1e-12), (x, k)
+    for g_new, g_old in zip(data["target"]["garments"], stored["target"]["garments"]):
+        assert g_new["garment"] == g_old["garment"] and g_new["runs"] == g_old["runs"]
+        assert g_new["gap_closed"] == pytest.approx(g_old["gap_closed"])

@@ -1,0 +1,100 @@
+"""`vtkiosk eval --pool TABLE.json...`: one comparison from stored tables, for runs whose weights are gone.
+
+A run's scores outlive its weights: `compare.json` keeps every run's figures, but not the per-unit sums the paired
+hierarchical bootstrap resamples, and a weights folder does not survive a fresh machine. Pooling gives each stored
+run one unit holding its score (trainer.bootstrap.single_unit), so the point estimates are the ones `--compare`
+would print and the intervals resample garments and each method's seeds, not the touches and blocks within a run.
+Where seeds vary more than places on the garment (the Fidelity II tables) that is the larger part of the spread;
+docs/training.md compares the two intervals on the same runs.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from trainer import verdict
+from trainer.bootstrap import single_unit
+from trainer.compare import DIFF_METRICS, differences, grouped_units, table
+from trainer.evaluate import Evaluation
+
+POOL_RESAMPLED = ("garments, then each method's seeds; one score per run (pooled from stored tables, which keep "
+                  "no per-unit sums), so the places within a run are not resampled")
+IDENTITY = ("method", "garment", "seed", "step", "crop", "weights", "checkpoint")
+
+
+class PoolError(ValueError):
+    """A stored table that cannot be pooled; the message names the file and what is wrong."""
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _scores(d: dict) -> dict[str, float]:
+    return {k: float(d[k]) for k in DIFF_METRICS if _finite(d.get(k))}
+
+
+def load_runs(paths: list[Path]) -> list[dict]:
+    """Every run of the tables, each once: a run in two tables (the same method, garment, seed, step, crop,
+    weights and checkpoint) with the same scores is kept once; with other scores it is an error, since two runs
+    would then be counted as one."""
+    seen: dict[tuple, tuple[dict, Path]] = {}
+    out: list[dict] = []
+    for path in paths:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise PoolError(f"{path}: cannot read a comparison table ({exc})") from exc
+        runs = data.get("runs") if isinstance(data, dict) else None
+        if not isinstance(runs, list) or not runs:
+            raise PoolError(f"{path}: no 'runs' list; expected the compare.json of `vtkiosk eval --compare`")
+        for i, r in enumerate(runs):
+            if not isinstance(r, dict) or not all(isinstance(r.get(k), str) for k in ("method", "garment")):
+                raise PoolError(f"{path}: run {i} has no method and garment")
+            if not _scores(r):
+                raise PoolError(f"{path}: run {i} ({r['method']} on {r['garment']}) has no finite score")
+            key = tuple(json.dumps(r.get(k)) for k in IDENTITY)
+            if key in seen:
+                first, where = seen[key]
+                a, b = _scores(first), _scores(r)
+                if a.keys() != b.keys() or any(not math.isclose(a[k], b[k], rel_tol=1e-9, abs_tol=1e-12) for k in a):
+                    raise PoolError(f"{path}: run {i} ({r['method']} on {r['garment']}, seed {r.get('seed')}) is "
+                                    f"also in {where} with other scores: two runs under one name; label one "
+                                    f"(LABEL=RUN) when tabling it, or pool one of the tables")
+                continue
+            seen[key] = (r, Path(path))
+            out.append(dict(r) | {"pooled_from": str(path)})
+    return out
+
+
+def evaluation(r: dict) -> Evaluation:
+    """A stored run as an Evaluation whose every metric (and reference row) is one unit."""
+    refs = r.get("references") if isinstance(r.get("references"), dict) else {}
+    return Evaluation(result=r, units={k: single_unit(k, v) for k, v in _scores(r).items()},
+                      ref_units={n: {k: single_unit(k, v) for k, v in _scores(ref).items()}
+                                 for n, ref in refs.items() if isinstance(ref, dict)})
+
+
+def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000) -> tuple[str, dict]:
+    """The table, intervals and target check of all runs in `paths`; writes compare.md and compare.json."""
+    evals = [evaluation(r) for r in load_runs(paths)]
+    methods = [e.result["method"] for e in evals]
+    if ours not in methods:
+        ours = methods[0]
+    diffs = differences(evals, ours, n_boot=n_boot)
+    results = [e.result for e in evals]
+    md, data = table(results, diffs, ours, resampled=POOL_RESAMPLED)
+    competitors = sorted({m for m in methods if m != ours})
+    if competitors:
+        data["target"] = verdict.check(grouped_units(evals), results, ours, competitors, n_boot=n_boot)
+        md += "\n" + verdict.markdown(data["target"])
+    names = ", ".join(str(p) for p in paths)
+    md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(results)} runs. Intervals resample "
+          f"{POOL_RESAMPLED}.\n\n") + md
+    data["pooled_from"] = [str(p) for p in paths]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "compare.md").write_text(md)
+    (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
+    return md, data
