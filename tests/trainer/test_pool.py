@@ -105,3 +105,14 @@ def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
     for g_new, g_old in zip(data["target"]["garments"], stored["target"]["garments"]):
         assert g_new["garment"] == g_old["garment"] and g_new["runs"] == g_old["runs"]
         assert g_new["gap_closed"] == pytest.approx(g_old["gap_closed"])
+
+
+def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(tmp_path):
+    """docs/compare_gpu/h100-768-2000/pooled was written by the README's `--pool` command from two committed tables;
+    the bootstrap is seeded, so the same command gives the same figures."""
+    pooled = ROOT / "docs/compare_gpu/h100-768-2000/pooled/compare.json"
+    stored = json.loads(pooled.read_text())
+    _, data = pool([ROOT / p for p in stored["pooled_from"]], tmp_path / "out")
+    assert data["differences"] == stored["differences"]
+    assert data["target"] == stored["target"]
+    assert all(not p.startswith("/") for p in stored["pooled_from"])
