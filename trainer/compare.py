@@ -321,6 +321,24 @@ def parse_labelled(args: list[str]) -> tuple[list[RunSpec], dict[RunSpec, str]]:
     return runs, labels
 
 
+def report(evals: list[Evaluation], ours: str, *, n_boot: int = 2000,
+           resampled: str = UNITS_RESAMPLED) -> tuple[str, dict]:
+    """The tables, the `ours - X` intervals and the target check of scored runs (`resampled`: what the intervals
+    resample, said under them)."""
+    methods = [e.result["method"] for e in evals]
+    if ours not in methods:   # differences are taken against the first run's method then
+        ours = methods[0]
+    with torch.no_grad():
+        diffs = differences(evals, ours, n_boot=n_boot)
+    results = [e.result for e in evals]
+    md, data = table(results, diffs, ours, resampled=resampled)
+    competitors = sorted({m for m in methods if m != ours})
+    if competitors:
+        data["target"] = verdict.check(grouped_units(evals), results, ours, competitors, n_boot=n_boot)
+        md += "\n" + verdict.markdown(data["target"])
+    return md, data
+
+
 def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, ours: str = "ours",
             n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
@@ -337,17 +355,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
         if name != e.result["method"]:
             e.result["trained_method"], e.result["method"] = e.result["method"], name
         evals.append(e)
-    methods = [e.result["method"] for e in evals]
-    if ours not in methods:   # differences are taken against the first run's method then
-        ours = methods[0]
-    with torch.no_grad():
-        diffs = differences(evals, ours, n_boot=n_boot)
-    results = [e.result for e in evals]
-    md, data = table(results, diffs, ours)
-    competitors = sorted({m for m in methods if m != ours})
-    if competitors:
-        data["target"] = verdict.check(grouped_units(evals), results, ours, competitors, n_boot=n_boot)
-        md += "\n" + verdict.markdown(data["target"])
+    md, data = report(evals, ours, n_boot=n_boot)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which, labels)]

@@ -1,5 +1,5 @@
-"""`vtkiosk eval --run RUN [--json OUT]`, `vtkiosk eval --compare RUN... --out DIR` and `--pool TABLE.json...`. Light imports; torch is
-imported inside `main`."""
+"""`vtkiosk eval --run RUN [--json OUT]`, `vtkiosk eval --compare RUN... --out DIR` and `vtkiosk eval --pool
+TABLE.json... --out DIR`. Light imports; torch is imported inside `main` (and by --pool's table code)."""
 from __future__ import annotations
 
 import argparse

@@ -13,9 +13,8 @@ import json
 import math
 from pathlib import Path
 
-from trainer import verdict
 from trainer.bootstrap import single_unit
-from trainer.compare import DIFF_METRICS, differences, grouped_units, table
+from trainer.compare import DIFF_METRICS, report
 from trainer.evaluate import Evaluation
 
 POOL_RESAMPLED = ("garments, then each method's seeds; one score per run (pooled from stored tables, which keep "
@@ -79,18 +78,9 @@ def evaluation(r: dict) -> Evaluation:
 def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000) -> tuple[str, dict]:
     """The table, intervals and target check of all runs in `paths`; writes compare.md and compare.json."""
     evals = [evaluation(r) for r in load_runs(paths)]
-    methods = [e.result["method"] for e in evals]
-    if ours not in methods:
-        ours = methods[0]
-    diffs = differences(evals, ours, n_boot=n_boot)
-    results = [e.result for e in evals]
-    md, data = table(results, diffs, ours, resampled=POOL_RESAMPLED)
-    competitors = sorted({m for m in methods if m != ours})
-    if competitors:
-        data["target"] = verdict.check(grouped_units(evals), results, ours, competitors, n_boot=n_boot)
-        md += "\n" + verdict.markdown(data["target"])
+    md, data = report(evals, ours, n_boot=n_boot, resampled=POOL_RESAMPLED)
     names = ", ".join(str(p) for p in paths)
-    md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(results)} runs. Intervals resample "
+    md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(evals)} runs. Intervals resample "
           f"{POOL_RESAMPLED}.\n\n") + md
     data["pooled_from"] = [str(p) for p in paths]
     out_dir = Path(out_dir)
