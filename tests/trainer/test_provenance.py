@@ -17,6 +17,9 @@ from trainer.loop import Trainer
 
 torch.set_num_threads(2)
 HERE = provenance.this_machine(1)
+# Another kernel path than this machine's, whichever ISA this machine has (CI runs on AVX2-only and AVX-512 hosts).
+OTHER_KERNELS = ({"isa": ["avx2"], "torch_cpu_capability": "AVX2"} if HERE["torch_cpu_capability"] != "AVX2"
+                 else {"isa": ["avx2", "avx512"], "torch_cpu_capability": "AVX512"})
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +42,8 @@ def test_same_kernels_continues_the_stretch_silently():
     assert out == stretches and warning is None
 
 
-@pytest.mark.parametrize("key,value", [("isa", ["avx2"]), ("torch_cpu_capability", "AVX2"), ("threads", 4),
+@pytest.mark.parametrize("key,value", [("isa", OTHER_KERNELS["isa"]),
+                                       ("torch_cpu_capability", OTHER_KERNELS["torch_cpu_capability"]), ("threads", 4),
                                        ("cpu_model", "Intel(R) Xeon(R) Platinum 8480+"), ("torch", "2.12.0+cpu")])
 def test_a_resume_on_other_kernels_starts_a_stretch_and_warns(key, value):
     other = HERE | {key: value}
@@ -84,14 +88,14 @@ def test_checkpoints_and_metrics_carry_the_machine_and_a_changed_resume_is_recor
     Trainer(cfg, garment, tmp_path / "r").run(until=1)
     _, info = load_generator(tmp_path / "r", "latest")
     assert info["machines"] == [{"from_step": 0, "machine": HERE}]
-    # pretend the first stretch ran on an AVX2-only machine
+    # pretend the first stretch ran on a machine with the other kernel path
     path = tmp_path / "r" / "checkpoints" / "latest.pt"
     ck = torch.load(path, weights_only=False)
-    ck["machines"][0]["machine"] = HERE | {"isa": ["avx2"], "torch_cpu_capability": "AVX2"}
+    ck["machines"][0]["machine"] = HERE | OTHER_KERNELS
     torch.save(ck, path)
     with caplog.at_level("WARNING", logger="trainer"):
         t = Trainer(cfg, garment, tmp_path / "r", resume=True)
-    assert "resuming at step 1" in caplog.text and "AVX2" in caplog.text
+    assert "resuming at step 1" in caplog.text and OTHER_KERNELS["torch_cpu_capability"] in caplog.text
     t.run()
     record = json.loads((tmp_path / "r" / "metrics.json").read_text())["train"]["machines"]
     assert [s["from_step"] for s in record] == [0, 1] and record[1]["machine"] == HERE
@@ -100,7 +104,7 @@ def test_checkpoints_and_metrics_carry_the_machine_and_a_changed_resume_is_recor
 
 
 def test_the_comparison_names_the_machines_its_rows_were_trained_on():
-    other = HERE | {"isa": ["avx2"], "torch_cpu_capability": "AVX2"}
+    other = HERE | OTHER_KERNELS
     results = [{"method": "ours", "garment": "G", "machines": [{"from_step": 0, "machine": HERE}]},
                {"method": "ours", "garment": "H", "machines": [{"from_step": 0, "machine": HERE},
                                                               {"from_step": 9, "machine": other}]},
