@@ -1,7 +1,13 @@
 """Shared fixtures: small datasets the project generates itself (nothing is downloaded)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+# The suite runs in two processes (pyproject's `-n auto --dist loadfile`) on a two-core machine; OpenMP's default
+# spin-wait makes each process's torch threads burn the core the other needs (a 6 s test took 44 s). Passive waiting
+# changes no number, only how idle threads wait; set before torch loads libgomp, and inherited by the workers.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import cv2
 import numpy as np
