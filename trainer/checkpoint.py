@@ -87,20 +87,24 @@ def _drop_spade_running_stats(name: str, state: dict) -> dict:
     return kept
 
 
-WEIGHTS = ("average", "raw")
+WEIGHTS = ("average", "raw", "probe")
 
 
 def generator_state(ck: dict, weights: str = "average") -> dict:
     """G's weights in a checkpoint: `average` = what is validated and exported (the EMA when the run kept one, else
     the raw weights); `raw` = the optimiser's own weights, kept for resuming, so the EMA can be measured as an
-    ablation without another run."""
+    ablation without another run; `probe` = the second average of a run trained with `train.ema_probe_ramp`."""
     if weights not in WEIGHTS:
         raise CheckpointError(f"weights must be one of {', '.join(WEIGHTS)}; got {weights!r}")
     if weights == "average":
         return ck["generator"]
+    key = "generator" if weights == "raw" else "ema_probe"
     try:
-        return ck["train_state"]["method"]["generator"]
+        return ck["train_state"]["method"][key]
     except (KeyError, TypeError):
+        if weights == "probe":
+            raise CheckpointError("the checkpoint holds no probe average (trained without train.ema_probe_ramp, or "
+                                  "an exported or compacted checkpoint); score its average instead") from None
         raise CheckpointError("the checkpoint holds no raw weights (no training state: an exported or compacted "
                               "checkpoint); score its average instead") from None
 

@@ -293,7 +293,7 @@ def _default_label(method: str, spec: RunSpec) -> str:
 
 
 def parse_run(arg: str) -> RunSpec:
-    """`RUN` or `RUN@raw` (score the run's raw G weights instead of their average)."""
+    """`RUN`, `RUN@raw` (score the run's raw G weights instead of their average) or `RUN@probe` (its probe average)."""
     path, sep, weights = arg.rpartition("@")
     if sep and weights in WEIGHTS and path:
         return RunSpec(Path(path), weights)

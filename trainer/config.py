@@ -122,6 +122,12 @@ class TrainConfig:
     progress: bool = True
     # Decay of the exponential moving average of G's weights used for validation, evaluation and export; 0 = off.
     ema: float = 0.0
+    # Warm-up of that average: its decay at step s is min(ema, (1 + s) / (ema_ramp + s)), so until `ema` caps it the
+    # average covers about the last 1 / (ema_ramp - 1) of the steps so far (10: the last ninth; 0.999 is reached at
+    # step ~9 000, so a 2 000-step run never gets there). `ema_probe_ramp` > 0 keeps a second, passive average with
+    # that ramp beside it (scored as `RUN@probe`): training is the same run, so the two ramps compare within it.
+    ema_ramp: float = 10.0
+    ema_probe_ramp: float = 0.0
     # Where the step runs: "cpu", "cuda", "cuda:N", or "auto" (the first GPU when torch sees one, else the CPU).
     # How a run is executed, not what it learns: a resume may change it and the recipe hash leaves it out.
     device: str = "cpu"
@@ -216,6 +222,13 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"optim.decay_from is a fraction of the schedule, 0..1; got {cfg.optim.decay_from}")
     if not (cfg.train.ema == 0.0 or 0.0 < cfg.train.ema < 1.0):
         raise ConfigError(f"train.ema is a decay in (0, 1), or 0 for off; got {cfg.train.ema}")
+    if not cfg.train.ema_ramp > 1.0:
+        raise ConfigError(f"train.ema_ramp must be > 1 (the average covers 1 / (ramp - 1) of the steps); "
+                          f"got {cfg.train.ema_ramp}")
+    if not (cfg.train.ema_probe_ramp == 0.0 or cfg.train.ema_probe_ramp > 1.0):
+        raise ConfigError(f"train.ema_probe_ramp is > 1, or 0 for no probe average; got {cfg.train.ema_probe_ramp}")
+    if cfg.train.ema_probe_ramp and not cfg.train.ema:
+        raise ConfigError("train.ema_probe_ramp needs train.ema (the probe shares its decay cap)")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
     try:

@@ -12,13 +12,14 @@ from pathlib import Path
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description="Evaluate trained runs; compare methods.")
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--run", metavar="RUN[@raw]",
+    mode.add_argument("--run", metavar="RUN[@raw|@probe]",
                       help="a run folder (from vtkiosk train --out); RUN@raw scores G's raw weights instead of their "
-                           "moving average (train.ema), the EMA's ablation without another run")
-    mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN[@raw]",
+                           "moving average (train.ema), the EMA's ablation without another run; RUN@probe the second "
+                           "average of a run trained with train.ema_probe_ramp")
+    mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN[@raw|@probe]",
                       help="several runs: table + sheets; LABEL=RUN names a run's row LABEL instead of its method "
                            "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10); RUN@raw "
-                           "scores the run's raw weights, in rows named <method>-raw")
+                           "scores the run's raw weights, in rows named <method>-raw (RUN@probe: its probe average, <method>-probe)")
     mode.add_argument("--pool", nargs="+", type=Path, metavar="TABLE.json",
                       help="one comparison from stored tables (compare.json of --compare), for runs whose weights "
                            "are gone: each run counts by its score, so intervals resample garments and seeds only")

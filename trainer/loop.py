@@ -80,7 +80,7 @@ class Trainer:
         set_determinism(cfg, self.device)
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
-        self.method.attach_ema(cfg.train.ema)
+        self.method.attach_ema(cfg.train.ema, cfg.train.ema_ramp, cfg.train.ema_probe_ramp)
         self.val = self.data.eval_set("val").to(self.device)
         self.step = 0
         self.history: list[dict] = []

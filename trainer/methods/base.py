@@ -29,10 +29,13 @@ class Method(ABC):
         self.opts: dict[str, torch.optim.Optimizer] = {}
         self.info: dict = {}
         self.ema: EMA | None = None
+        self.ema_probe: EMA | None = None
 
-    def attach_ema(self, decay: float) -> None:
-        """Average G's weights from now on (`train.ema`); 0 leaves the raw weights in charge."""
-        self.ema = EMA(self.generator, decay) if decay > 0 else None
+    def attach_ema(self, decay: float, ramp: float = 10.0, probe_ramp: float = 0.0) -> None:
+        """Average G's weights from now on (`train.ema`); 0 leaves the raw weights in charge. A probe ramp keeps a
+        second average that nothing reads while training, so two warm-ups compare on one trajectory."""
+        self.ema = EMA(self.generator, decay, ramp) if decay > 0 else None
+        self.ema_probe = EMA(self.generator, decay, probe_ramp) if decay > 0 and probe_ramp > 0 else None
 
     @property
     def eval_generator(self) -> nn.Module:
@@ -40,8 +43,9 @@ class Method(ABC):
         return self.ema.model if self.ema is not None else self.generator
 
     def after_step(self, step: int) -> None:
-        if self.ema is not None:
-            self.ema.update(self.generator, step)
+        for avg in (self.ema, self.ema_probe):
+            if avg is not None:
+                avg.update(self.generator, step)
 
     # --- distributed helpers -------------------------------------------------------------------------------
     def _wrap_generator(self) -> nn.Module:
@@ -71,6 +75,8 @@ class Method(ABC):
                  "opts": {k: v.state_dict() for k, v in self.opts.items()}}
         if self.ema is not None:
             state["ema"] = self.ema.state_dict()
+        if self.ema_probe is not None:
+            state["ema_probe"] = self.ema_probe.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -83,6 +89,10 @@ class Method(ABC):
             if "ema" not in state:
                 raise KeyError("the checkpoint holds no weight average (train.ema was off when it was saved)")
             self.ema.load_state_dict(state["ema"])
+        if self.ema_probe is not None:
+            if "ema_probe" not in state:
+                raise KeyError("the checkpoint holds no probe average (train.ema_probe_ramp was off when it was saved)")
+            self.ema_probe.load_state_dict(state["ema_probe"])
 
     def train(self) -> None:
         self.generator.train()

@@ -130,6 +130,63 @@ def test_ema_first_update_is_the_warmup_blend():
     assert ema.model.weight.item() == pytest.approx(0.9)       # d = 0.1 at step 0
 
 
+@settings(max_examples=40, deadline=None)
+@given(values=st.lists(st.floats(-10, 10, allow_nan=False), min_size=1, max_size=60))
+def test_ema_ramp_two_is_the_plain_mean_of_every_step_so_far(values):
+    """Ramp 2 gives d = (1 + s) / (2 + s): weight 1 / (s + 2) on step s's weights, the running mean with the initial
+    weights as one more sample; the decay cap is far off for these few steps."""
+    net = torch.nn.Linear(1, 1, bias=False)
+    with torch.no_grad():
+        net.weight.fill_(0.0)
+    ema = EMA(net.double(), 0.9999, ramp=2.0)
+    for s, v in enumerate(values):
+        with torch.no_grad():
+            net.weight.fill_(v)
+        ema.update(net, s)
+    assert ema.model.weight.item() == pytest.approx(sum(values) / (len(values) + 1), abs=1e-9)
+    for bad in (1.0, 0.5, -3.0):
+        with pytest.raises(ValueError, match="ramp"):
+            EMA(net, 0.99, ramp=bad)
+
+
+def test_a_probe_average_rides_along_resumes_and_scores_as_at_probe(synth, tmp_path):
+    """A probe average changes nothing the run learns (its main average and raw weights equal a run without it), is
+    a different average from the main one, resumes bit for bit, and is scored as RUN@probe beside the average."""
+    def cfg(*extra):
+        return load_config("tiny", overrides=["train.steps=4", "train.deterministic=true", "train.ckpt_every=2",
+                                              "train.threads=1", "train.ema=0.999", *extra])
+    plain = Trainer(cfg(), synth, tmp_path / "plain")
+    plain.run()
+    probed = Trainer(cfg("train.ema_probe_ramp=2"), synth, tmp_path / "probed")
+    probed.run()
+    for a, b in ((plain.method.generator, probed.method.generator), (plain.method.ema.model, probed.method.ema.model)):
+        assert all(torch.equal(v, b.state_dict()[k]) for k, v in a.state_dict().items())
+    probe = probed.method.ema_probe.model.state_dict()
+    assert any(not torch.equal(v, probe[k]) for k, v in probed.method.ema.model.state_dict().items())
+    part = Trainer(cfg("train.ema_probe_ramp=2"), synth, tmp_path / "part")
+    part.run(until=2)
+    resumed = Trainer(cfg("train.ema_probe_ramp=2"), synth, tmp_path / "part", resume=True)
+    resumed.run()
+    assert all(torch.equal(v, probe[k]) for k, v in resumed.method.ema_probe.model.state_dict().items())
+    net, info = load_generator(tmp_path / "probed", "latest", "probe")
+    assert info["weights"] == "probe" and all(torch.equal(v, probe[k]) for k, v in net.state_dict().items())
+    with pytest.raises(CheckpointError, match="no probe average"):
+        load_generator(tmp_path / "plain", "latest", "probe")
+    from vtkiosk.cli import main as vtkiosk
+    assert vtkiosk(["eval", "--run", f"{tmp_path / 'probed'}@probe", "--no-swap"]) == 0
+    assert json.loads((tmp_path / "probed" / "eval" / "metrics-probe.json").read_text())["weights"] == "probe"
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["train.ema=0.999", "train.ema_ramp=1"], "train.ema_ramp must be > 1"),
+    (["train.ema=0.999", "train.ema_probe_ramp=0.5"], "train.ema_probe_ramp is > 1, or 0"),
+    (["train.ema=0", "train.ema_probe_ramp=3"], "needs train.ema"),
+])
+def test_bad_ema_ramps_are_refused_by_name(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config("tiny", overrides=overrides)
+
+
 def test_texture_loss_zero_on_equal_and_grows_with_contrast_error():
     t = TextureStatsLoss()
     g = torch.Generator().manual_seed(0)
@@ -215,7 +272,7 @@ def test_raw_weights_need_the_training_state_and_a_known_name(synth, tmp_path):
     cfg = load_config("tiny", overrides=["train.steps=1", "train.threads=1"])
     Trainer(cfg, synth, tmp_path / "r").run()
     ck_path = tmp_path / "r" / "checkpoints" / "best.pt"
-    with pytest.raises(CheckpointError, match="weights must be one of average, raw"):
+    with pytest.raises(CheckpointError, match="weights must be one of average, raw, probe"):
         load_generator(tmp_path / "r", "best", "ema")
     from vtkiosk.cli import main as vtkiosk
     assert vtkiosk(["eval", "--run", f"{tmp_path / 'r'}@raw", "--no-swap"]) == 0   # scored beside, never over
