@@ -19,7 +19,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     mode.add_argument("--compare", nargs="+", metavar="[LABEL=]RUN[@raw|@probe]",
                       help="several runs: table + sheets; LABEL=RUN names a run's row LABEL instead of its method "
                            "(a recipe variant beside the method it varies, e.g. ours-r1-10=runs/g/r1_10); RUN@raw "
-                           "scores the run's raw weights, in rows named <method>-raw (RUN@probe: its probe average, <method>-probe)")
+                           "scores the run's raw weights, in rows named <method>-raw (RUN@probe: its probe average, "
+                           "<method>-probe)")
     mode.add_argument("--pool", nargs="+", type=Path, metavar="TABLE.json",
                       help="one comparison from stored tables (compare.json of --compare), for runs whose weights "
                            "are gone: each run counts by its score, so intervals resample garments and seeds only")
