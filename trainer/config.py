@@ -42,6 +42,7 @@ class ModelConfig:
     pe_dim: int = 4
     outer_skip: bool = False
     tactile_mult: int = 1       # width multiplier of G's tactile head (up3..up0); the paper's is 1
+    tactile_reads_visual: bool = False   # G's tactile head also reads the visual head's features (not the paper's)
     d_ndf: int = 8
     d_layers: int = 3
     d_scales: int = 3

@@ -52,3 +52,11 @@ def test_a_wider_tactile_head_exports_within_the_parity_bound(tmp_path):
     wide = TwoBranchUNet(base=8, tactile_mult=2).eval()
     path = export_graph(wide, "tactile", tmp_path / "tactile.onnx", size=(256, 256))
     assert parity(wide, "tactile", path, [_inputs(3, 256, 256)]) < PARITY_BOUND
+
+
+@pytest.mark.parametrize("kind", ["tactile", "full"])
+def test_a_tactile_head_that_reads_the_visual_head_exports_within_the_parity_bound(tmp_path, kind):
+    torch.manual_seed(9)
+    reads = TwoBranchUNet(base=8, tactile_reads_visual=True).eval()
+    path = export_graph(reads, kind, tmp_path / f"{kind}.onnx", size=(256, 256))
+    assert parity(reads, kind, path, [_inputs(4, 256, 256), _inputs(5, 512, 256)]) < PARITY_BOUND

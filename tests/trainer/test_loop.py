@@ -60,6 +60,13 @@ def test_a_wider_tactile_head_trains_and_its_checkpoint_rebuilds_it(synth, tmp_p
     assert sum(p.numel() for p in net.tactile.parameters()) > 2 * sum(p.numel() for p in net.visual.parameters())
 
 
+def test_a_tactile_head_that_reads_the_visual_head_trains_and_its_checkpoint_rebuilds_it(synth, tmp_path):
+    cfg = load_config("tiny", overrides=["train.steps=1", "model.tactile_reads_visual=true"])
+    Trainer(cfg, _garment(synth), tmp_path / "run").run()
+    net, _ = load_generator(tmp_path / "run", "latest")
+    assert isinstance(net, TwoBranchUNet) and net.model_config()["tactile_reads_visual"] is True
+
+
 def test_resume_is_bit_identical(synth, tmp_path):
     def cfg():
         return load_config("tiny", overrides=["train.steps=4", "train.deterministic=true", "train.ckpt_every=2"])

@@ -62,6 +62,29 @@ def test_wider_tactile_head_widens_only_the_tactile_layers_and_round_trips():
         TwoBranchUNet(tactile_mult=0)
 
 
+def test_a_tactile_head_that_reads_the_visual_head_depends_on_it_and_round_trips():
+    torch.manual_seed(3)
+    g = TwoBranchUNet(tactile_reads_visual=True).eval()
+    plain = TwoBranchUNet().eval()
+    count = lambda m: sum(p.numel() for p in m.parameters())   # noqa: E731
+    assert count(g.visual) == count(plain.visual) and count(g.tactile) > count(plain.tactile)
+    s = torch.rand(1, 1, 256, 256) * 2 - 1
+    m = torch.ones_like(s)
+    v, t = g(s, m)
+    # the tactile-only graph skips the visual head's last layer and still gives the full forward's tactile output
+    assert torch.equal(g(s, m, "tactile"), t) and torch.equal(g(s, m, "visual"), v)
+    # the tactile output changes when only the visual head's weights change: it does read them
+    with torch.no_grad():
+        g.visual.up2[1].weight.add_(0.5)
+    assert not torch.allclose(g(s, m, "tactile"), t)
+    again = TwoBranchUNet.from_config(g.model_config())
+    again.load_state_dict(g.state_dict())
+    assert torch.equal(again(s, m, "tactile"), g(s, m, "tactile"))
+    # a checkpoint written before the option rebuilds as the paper's heads
+    old = {k: val for k, val in plain.model_config().items() if k != "tactile_reads_visual"}
+    TwoBranchUNet.from_config(old).load_state_dict(plain.state_dict())
+
+
 def test_generator_outputs_are_masked_and_input_is_masked():
     torch.manual_seed(0)
     g = TwoBranchUNet().eval()

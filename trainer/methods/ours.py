@@ -41,7 +41,8 @@ class Ours(Method):
         super().__init__(cfg, side=side, dist=dist, device=device)
         m, o, lc = cfg.model, cfg.optim, cfg.loss
         self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip,
-                                       tactile_mult=m.tactile_mult).to(self.device)
+                                       tactile_mult=m.tactile_mult,
+                                       tactile_reads_visual=m.tactile_reads_visual).to(self.device)
         self.G = self._wrap_generator()
         betas = tuple(o.betas)
         self.opts["G"] = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=betas)

@@ -9,6 +9,11 @@ Decoder up7..up4 are shared; up3..up0 exist once per branch. Every up layer exce
 outermost (up0) takes the encoder skip of its level, concatenated (as in the authors' code: the outermost takes no skip).
 Outputs: tanh, multiplied by the mask. About 1.47 M parameters.
 
+`tactile_reads_visual` (not in the paper; docs/training.md, "The tactile head reads the visual head") feeds each
+visual head layer's output into the next tactile head layer as well (up3 -> up2, up2 -> up1, up1 -> up0): the
+visual head is trained densely on whole images and learns the shading of folds, while the tactile head sees only
+touch patches, so reading the visual features is how the tactile head could get at the garment's shape.
+
 Input: the masked sketch (N, 1, H, W) in [-1, 1] and the mask (N, 1, H, W) in {0, 1}, exactly the two tensors of
 `kiosk.contract.sketch.network_input`; the positional encoding is computed inside, so exported graphs take only these.
 """
@@ -34,6 +39,7 @@ class GeneratorConfig:
     max_mult: int = 8
     outer_skip: bool = False
     tactile_mult: int = 1   # width multiplier of the tactile head's own layers (up3..up0); 1 = the paper's
+    tactile_reads_visual: bool = False   # the tactile head's up2..up0 also take the visual head's features
 
 
 def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = False) -> nn.Sequential:
@@ -59,21 +65,37 @@ class Branch(nn.Module):
     `mult` widens the head's own layers (not the skips it takes), so a head can gain capacity without touching the
     shared encoder and trunk."""
 
-    def __init__(self, *, widths: list[int], out: int, outer_skip: bool, mult: int = 1):
+    def __init__(self, *, widths: list[int], out: int, outer_skip: bool, mult: int = 1,
+                 reads: list[int] | None = None):
         super().__init__()
-        # widths[i] = channels of encoder level i output (down_i), i = 0..7
+        # widths[i] = channels of encoder level i output (down_i), i = 0..7; `reads` = the channels of another
+        # head's up3, up2, up1 outputs, taken as extra inputs of this head's up2, up1, up0
         self.outer_skip = outer_skip
         own = [c * mult for c in widths[:3]]
+        extra = list(reads) if reads else [0, 0, 0]
         self.up3 = _up(2 * widths[4], own[2])
-        self.up2 = _up(widths[2] + own[2], own[1])
-        self.up1 = _up(widths[1] + own[1], own[0])
-        self.up0 = _up((widths[0] if outer_skip else 0) + own[0], out, outermost=True)
+        self.up2 = _up(widths[2] + own[2] + extra[0], own[1])
+        self.up1 = _up(widths[1] + own[1] + extra[1], own[0])
+        self.up0 = _up((widths[0] if outer_skip else 0) + own[0] + extra[2], out, outermost=True)
 
-    def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
-        y = self.up3(torch.cat([skips[3], trunk], 1))
-        y = self.up2(torch.cat([skips[2], y], 1))
-        y = self.up1(torch.cat([skips[1], y], 1))
-        return self.up0(torch.cat([skips[0], y], 1) if self.outer_skip else y)
+    @property
+    def widths_out(self) -> list[int]:
+        """Channels of up3, up2, up1 outputs: what another head reading this one takes."""
+        return [self.up3[1].out_channels, self.up2[1].out_channels, self.up1[1].out_channels]
+
+    def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor],
+                read: list[torch.Tensor] | None = None) -> torch.Tensor:
+        return self.features(trunk, skips, read)[-1]
+
+    def features(self, trunk: torch.Tensor, skips: list[torch.Tensor],
+                 read: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
+        """[up3, up2, up1, up0] outputs; `read` = another head's first three, concatenated into up2..up0."""
+        extra = (lambda i: [read[i]]) if read is not None else (lambda i: [])   # noqa: E731
+        y3 = self.up3(torch.cat([skips[3], trunk], 1))
+        y2 = self.up2(torch.cat([skips[2], y3, *extra(0)], 1))
+        y1 = self.up1(torch.cat([skips[1], y2, *extra(1)], 1))
+        y0 = self.up0(torch.cat(([skips[0]] if self.outer_skip else []) + [y1, *extra(2)], 1))
+        return [y3, y2, y1, y0]
 
 
 class TwoBranchUNet(nn.Module):
@@ -87,11 +109,13 @@ class TwoBranchUNet(nn.Module):
     """
 
     def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
-                 max_mult: int = 8, outer_skip: bool = False, tactile_mult: int = 1):
+                 max_mult: int = 8, outer_skip: bool = False, tactile_mult: int = 1,
+                 tactile_reads_visual: bool = False):
         super().__init__()
         if tactile_mult < 1:
             raise ValueError(f"tactile_mult must be >= 1; got {tactile_mult}")
-        self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip, tactile_mult)
+        self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip, tactile_mult,
+                                      bool(tactile_reads_visual))
         self.pe_dim = pe_dim
         w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
         cin = 1 + 2 * pe_dim
@@ -102,7 +126,8 @@ class TwoBranchUNet(nn.Module):
         self.up5 = _up(2 * w[5], w[4])
         self.up4 = _up(2 * w[4], w[3])
         self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip)
-        self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip, mult=tactile_mult)
+        self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip, mult=tactile_mult,
+                              reads=self.visual.widths_out if tactile_reads_visual else None)
 
     @classmethod
     def from_config(cls, cfg: dict | GeneratorConfig) -> "TwoBranchUNet":
@@ -138,7 +163,14 @@ class TwoBranchUNet(nn.Module):
     def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
         assert kind in GRAPH_OUTPUTS, f"kind must be one of {', '.join(GRAPH_OUTPUTS)}; got {kind!r}"
         trunk, skips = self.encode(sketch, mask)
-        outs = tuple(getattr(self, name)(trunk, skips) * mask for name in GRAPH_OUTPUTS[kind])
+        heads: dict[str, torch.Tensor] = {}
+        if self.config.tactile_reads_visual and "tactile" in GRAPH_OUTPUTS[kind]:
+            # the visual head's last layer is skipped when only the tactile output is asked for
+            seen = self.visual.features(trunk, skips)
+            heads["visual"] = seen[-1]
+            heads["tactile"] = self.tactile(trunk, skips, seen[:3])
+        outs = tuple((heads[name] if name in heads else getattr(self, name)(trunk, skips)) * mask
+                     for name in GRAPH_OUTPUTS[kind])
         return outs if len(outs) > 1 else outs[0]
 
 
