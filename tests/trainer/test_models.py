@@ -73,6 +73,13 @@ def test_a_tactile_head_that_reads_the_visual_head_depends_on_it_and_round_trips
     v, t = g(s, m)
     # the tactile-only graph skips the visual head's last layer and still gives the full forward's tactile output
     assert torch.equal(g(s, m, "tactile"), t) and torch.equal(g(s, m, "visual"), v)
+    calls = []
+    hook = g.visual.up0.register_forward_hook(lambda *_: calls.append(1))
+    g(s, m, "tactile")
+    assert not calls
+    g(s, m)
+    assert calls
+    hook.remove()
     # the tactile output changes when only the visual head's weights change: it does read them
     with torch.no_grad():
         g.visual.up2[1].weight.add_(0.5)
@@ -138,6 +145,13 @@ def test_pix2pix_generator_same_interface():
     v, t = g(s, m)
     assert v.shape == (3, 3, 32, 32) and t.shape == (3, 2, 32, 32)
     assert torch.equal(g(s, m, "tactile"), t) and torch.equal(g(s, m, "visual"), v)
+    calls = []
+    hook = g.visual.up0.register_forward_hook(lambda *_: calls.append(1))
+    g(s, m, "tactile")
+    assert not calls
+    g(s, m)
+    assert calls
+    hook.remove()
 
 
 def test_tactile_discriminator_handles_32px_patches_at_every_scale():

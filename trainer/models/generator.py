@@ -85,17 +85,22 @@ class Branch(nn.Module):
 
     def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor],
                 read: list[torch.Tensor] | None = None) -> torch.Tensor:
-        return self.features(trunk, skips, read)[-1]
+        return self.last(self.features(trunk, skips, read), skips, read)
 
     def features(self, trunk: torch.Tensor, skips: list[torch.Tensor],
                  read: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
-        """[up3, up2, up1, up0] outputs; `read` = another head's first three, concatenated into up2..up0."""
+        """[up3, up2, up1] outputs; `read` = another head's three, concatenated into up2, up1 (and up0, `last`)."""
         extra = (lambda i: [read[i]]) if read is not None else (lambda i: [])   # noqa: E731
         y3 = self.up3(torch.cat([skips[3], trunk], 1))
         y2 = self.up2(torch.cat([skips[2], y3, *extra(0)], 1))
         y1 = self.up1(torch.cat([skips[1], y2, *extra(1)], 1))
-        y0 = self.up0(torch.cat(([skips[0]] if self.outer_skip else []) + [y1, *extra(2)], 1))
-        return [y3, y2, y1, y0]
+        return [y3, y2, y1]
+
+    def last(self, features: list[torch.Tensor], skips: list[torch.Tensor],
+             read: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """up0, the output layer, on top of `features`."""
+        inputs = ([skips[0]] if self.outer_skip else []) + [features[-1]] + ([read[2]] if read is not None else [])
+        return self.up0(torch.cat(inputs, 1))
 
 
 class TwoBranchUNet(nn.Module):
@@ -167,8 +172,9 @@ class TwoBranchUNet(nn.Module):
         if self.config.tactile_reads_visual and "tactile" in GRAPH_OUTPUTS[kind]:
             # the visual head's last layer is skipped when only the tactile output is asked for
             seen = self.visual.features(trunk, skips)
-            heads["visual"] = seen[-1]
-            heads["tactile"] = self.tactile(trunk, skips, seen[:3])
+            if "visual" in GRAPH_OUTPUTS[kind]:
+                heads["visual"] = self.visual.last(seen, skips)
+            heads["tactile"] = self.tactile(trunk, skips, seen)
         outs = tuple((heads[name] if name in heads else getattr(self, name)(trunk, skips)) * mask
                      for name in GRAPH_OUTPUTS[kind])
         return outs if len(outs) > 1 else outs[0]
