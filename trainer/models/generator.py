@@ -90,17 +90,22 @@ class Branch(nn.Module):
     def features(self, trunk: torch.Tensor, skips: list[torch.Tensor],
                  read: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
         """[up3, up2, up1] outputs; `read` = another head's three, concatenated into up2, up1 (and up0, `last`)."""
-        extra = (lambda i: [read[i]]) if read is not None else (lambda i: [])   # noqa: E731
+        extra = _extra(read)
         y3 = self.up3(torch.cat([skips[3], trunk], 1))
-        y2 = self.up2(torch.cat([skips[2], y3, *extra(0)], 1))
-        y1 = self.up1(torch.cat([skips[1], y2, *extra(1)], 1))
+        y2 = self.up2(torch.cat([skips[2], y3, *extra[0]], 1))
+        y1 = self.up1(torch.cat([skips[1], y2, *extra[1]], 1))
         return [y3, y2, y1]
 
     def last(self, features: list[torch.Tensor], skips: list[torch.Tensor],
              read: list[torch.Tensor] | None = None) -> torch.Tensor:
         """up0, the output layer, on top of `features`."""
-        inputs = ([skips[0]] if self.outer_skip else []) + [features[-1]] + ([read[2]] if read is not None else [])
+        inputs = ([skips[0]] if self.outer_skip else []) + [features[-1], *_extra(read)[2]]
         return self.up0(torch.cat(inputs, 1))
+
+
+def _extra(read: list[torch.Tensor] | None) -> list[list[torch.Tensor]]:
+    """What each of up2, up1, up0 concatenates from another head: one tensor each, or nothing."""
+    return [[t] for t in read] if read is not None else [[], [], []]
 
 
 class TwoBranchUNet(nn.Module):
