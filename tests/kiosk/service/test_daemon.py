@@ -247,6 +247,10 @@ def test_device_loss_degrades_to_visual_only_and_recovers(daemon):
     status, meta, visuals = settle(daemon, edit)  # the refinement's friction frame meets the unplugged link
     assert status == 200 and meta["panels"][0]["status"] == "ok" and "main" in visuals  # still drawing
     assert any("visual only" in n for n in meta["notices"])
+    # the output thread sends the friction frame on its own; under load it may not have tried yet, and a replug
+    # before it tries would let the frame through without ever meeting the down link
+    c = daemon.wait_commit(meta["device_frame"], 10.0)
+    assert c is not None and c.status == "failed", c
     assert not daemon.health.run().checks["device"].ok
     assert json.loads(http(daemon.server.url + "api/status")[1])["degraded"]
     assert http(daemon.server.url + "healthz")[0] == 503
