@@ -34,6 +34,11 @@ class DataConfig:
     # Where unpaired fake patches land: "laplacian", weighted like the paired ones, or "uniform" over the object (the
     # paper), where the tactile D learns "plain cloth under the patch = fake" (docs/training.md, unpaired patches).
     unpaired_sampling: str = "laplacian"
+    # Probability that a training crop is mirrored across its main diagonal (sketch, mask, photo, patches; the
+    # tactile patches' gx and gy trade places): each touch then teaches relief at a second orientation. The diagonal
+    # is the one mirror that keeps a photo lit from the upper left (the synthetic lamp, most studio set-ups) lit from
+    # there; 0 = off (the paper). trainer/recipe/transpose.py.
+    transpose: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -232,6 +237,8 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError("train.ema_probe_ramp needs train.ema (the probe shares its decay cap)")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
+    if not 0.0 <= cfg.data.transpose <= 1.0:
+        raise ConfigError(f"data.transpose is a probability, in [0, 1]; got {cfg.data.transpose}")
     try:
         parse_policy(cfg.loss.diffaug)
     except ValueError as exc:

@@ -19,6 +19,7 @@ from kiosk.contract.sketch import network_input
 from trainer.augment import eval_crop_origin, random_crop_origin, resolve_crop
 from trainer.config import DataConfig
 from trainer.data.touchclothing import PATCH, Garment, PatchSet, extract_patches, friction_scale, load_garment
+from trainer.recipe.transpose import transpose_batch
 
 
 @dataclass
@@ -122,7 +123,11 @@ class GarmentData:
         idx = rng.choice(len(ps), size=k, replace=len(ps) < k, p=p)
         gx, gy, c = patches_to_tensors(ps, idx)
         unpaired = self._unpaired(rng, side, mcrop, variance)
-        return Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
+        b = Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
+        # drawn only when asked for, so runs without it keep the stream they always had
+        if self.cfg.transpose > 0 and rng.random() < self.cfg.transpose:
+            b = transpose_batch(b)
+        return b
 
     def _unpaired(self, rng, side, mcrop, variance) -> np.ndarray:
         """Fake-patch corners whose centre pixel lies on the object, fully inside the crop; uniform, or weighted by

@@ -119,3 +119,63 @@ def test_origin_range_matches_published_for_full_frame_object():
     rng = np.random.default_rng(0)
     xs = [random_crop_origin(m, 1536, rng)[0] for _ in range(200)]
     assert min(xs) >= 4 and max(xs) <= 260 and len(set(xs)) > 50
+
+
+def _mirrored(real_layout_dir, p: float) -> GarmentData:
+    return GarmentData(real_layout_dir / "singleskit_DenimToy_padded_1800_x1",
+                       DataConfig(crop=256, patches=16, unpaired=8, transpose=p), seed=3)
+
+
+def test_a_mirrored_crop_is_the_garment_transposed_with_gx_and_gy_traded(real_layout_dir):
+    """data.transpose=1: every crop is the garment mirrored across the crop's diagonal, read at the same place."""
+    data = _mirrored(real_layout_dir, 1.0)
+    gx_full, gy_full = field_gx((1800, 1800))
+    b = data.batch(5)
+    ox, oy = b.origin
+    s = data.side
+    raw = data.g.sketch[oy:oy + s, ox:ox + s].astype(np.float32) / 127.5 - 1
+    np.testing.assert_allclose(b.sketch[0, 0].numpy(), (raw * data.g.mask[oy:oy + s, ox:ox + s]).T, atol=1e-6)
+    np.testing.assert_allclose(b.visual[0].numpy(), np.transpose(
+        (data.g.visual[oy:oy + s, ox:ox + s].astype(np.float32) / 127.5 - 1) * data.g.mask[oy:oy + s, ox:ox + s, None],
+        (2, 1, 0)), atol=1e-6)
+    for k, (px, py) in enumerate(b.origins.tolist()):
+        # the patch at (px, py) of the mirrored crop is the patch at (py, px) of the garment's crop, mirrored
+        src = (slice(oy + px, oy + px + 32), slice(ox + py, ox + py + 32))
+        np.testing.assert_allclose(b.gx[k, 0].numpy(), gy_full[src].T, atol=1e-6)
+        np.testing.assert_allclose(b.gy[k, 0].numpy(), gx_full[src].T, atol=1e-6)
+    m = b.mask[0, 0].numpy()
+    for x, y in b.unpaired.tolist():
+        assert m[y + 16, x + 16] == 1   # unpaired corners still land on the (mirrored) object
+
+
+def test_the_mirror_turns_a_height_fields_x_slope_into_its_y_slope():
+    """Why gx and gy trade places: mirroring a surface h across the diagonal, h'(x, y) = h(y, x), gives
+    dh'/dx = (dh/dy) mirrored, and the contact sensor's gx, gy are those slopes."""
+    rng = np.random.default_rng(0)
+    h = cv2.GaussianBlur(rng.normal(size=(64, 64)).astype(np.float32), (0, 0), 3)
+    gy, gx = np.gradient(h)
+    gy_t, gx_t = np.gradient(h.T)
+    np.testing.assert_allclose(gx_t, gy.T, atol=1e-6)
+    np.testing.assert_allclose(gy_t, gx.T, atol=1e-6)
+
+
+def test_mirroring_off_keeps_the_stream_and_half_mirrors_about_half(real_layout_dir, data):
+    off = _mirrored(real_layout_dir, 0.0)
+    half = _mirrored(real_layout_dir, 0.5)
+    flips = 0
+    for step in range(40):
+        a, b, h = data.batch(step), off.batch(step), half.batch(step)
+        assert torch.equal(a.sketch, b.sketch) and torch.equal(a.gx, b.gx) and np.array_equal(a.origins, b.origins)
+        assert torch.equal(h.gx, half.batch(step).gx)     # a step draws the same mirror every time (resume)
+        same = torch.equal(h.sketch, a.sketch)
+        assert same or torch.equal(h.sketch, a.sketch.transpose(-1, -2))
+        flips += not same
+    assert 8 <= flips <= 32   # Binomial(40, 0.5): outside this with probability < 1e-4
+
+
+@pytest.mark.parametrize("value, says", [("1.5", "is a probability"), ("-0.1", "is a probability"),
+                                         ("nan", "must be a finite number")])
+def test_a_mirror_probability_outside_0_1_is_refused(value, says):
+    from trainer.config import ConfigError, load_config
+    with pytest.raises(ConfigError, match=f"data.transpose {says}"):
+        load_config("tiny", overrides=[f"data.transpose={value}"])
