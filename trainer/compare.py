@@ -32,13 +32,18 @@ TACTILE_COLUMNS = [("tactile_mse", "T-MSE ↓"), ("tactile_angle_deg", "T-angle�
                    ("tactile_lpips", "T-LPIPS ↓"), ("tactile_sifid_seen", "T-SIFID seen ↓"),
                    ("tactile_fbsifid_seen", "T-FB-SIFID seen ↓"), ("full_fbsifid_seen", "Full FB-SIFID seen ↓"),
                    ("full_fbsifid_unseen", "Full FB-SIFID unseen ↓")]
+# the outside angle split where the sketch draws relief and where it leaves open cloth (trainer.evaluate.near_strokes)
+WHERE_COLUMNS = [("full_angle_deg_outside", "outside° ↓"), ("gap:full_angle_deg_outside", "gap"),
+                 ("full_angle_deg_outside_lines", "by a line° ↓"), ("gap:full_angle_deg_outside_lines", "gap"),
+                 ("full_angle_deg_outside_open", "open cloth° ↓"), ("gap:full_angle_deg_outside_open", "gap")]
 # gap-closed columns follow these (tactile, lower is better)
 GAP_AFTER = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle_deg_outside", "full_friction_mae",
              "full_friction_mae_outside")
 DIFF_METRICS = ("visual_psnr", "visual_ssim", "visual_l1", "visual_fbsifid_unseen", "tactile_mse",
                 "tactile_angle_deg", "full_angle_deg", "full_angle_deg_inside", "full_angle_deg_outside",
-                "full_friction_mae", "full_friction_mae_outside", "full_fbsifid_unseen")
-COLUMNS = VISUAL_COLUMNS + TACTILE_COLUMNS
+                "full_angle_deg_outside_lines", "full_angle_deg_outside_open", "full_friction_mae",
+                "full_friction_mae_outside", "full_fbsifid_unseen")
+COLUMNS = VISUAL_COLUMNS + TACTILE_COLUMNS + [c for c in WHERE_COLUMNS if not c[0].startswith("gap:")]
 HEADERS = dict(COLUMNS)
 UNITS_RESAMPLED = ("held-out touches (tactile patches), 32 px blocks (visual, full field) or unseen sketches "
                    "(FB-SIFID unseen), then garments, then each method's seeds")
@@ -128,20 +133,23 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours", *,
     md_v, mv, sv, rv = _section("Visual (inside the object mask)", VISUAL_COLUMNS,
                                 by_method, {k: v for k, v in refs.items() if k == "mean-colour"})
     md_t, mt, st, rt = _section("Tactile", tcols, by_method, {k: v for k, v in refs.items() if k != "mean-colour"})
-    md = "\n".join(s for s in (md_v, md_t) if s)
+    md_w, mw, sw, rw = _section("Outside the touches: by the sketch's lines and in open cloth", WHERE_COLUMNS,
+                              by_method, {k: v for k, v in refs.items() if k != "mean-colour"})
+    md = "\n".join(s for s in (md_v, md_t, md_w) if s)
     trained_on = machines(results)
     md += "\n" + machines_markdown(trained_on)
     if diffs:
         md += "\n" + ci_table(diffs, ours, resampled)
-    means = {m: mv.get(m, {}) | mt.get(m, {}) for m in by_method}
+    means = {m: mv.get(m, {}) | mt.get(m, {}) | mw.get(m, {}) for m in by_method}
     gaps = {m: {k[4:]: v for k, v in row.items() if k.startswith("gap:")} for m, row in means.items()}
     means = {m: {k: v for k, v in row.items() if not k.startswith("gap:")} for m, row in means.items()}
-    sds = {m: {k: v for k, v in (sv.get(m, {}) | st.get(m, {})).items() if not k.startswith("gap:")}
+    sds = {m: {k: v for k, v in (sv.get(m, {}) | st.get(m, {}) | sw.get(m, {})).items() if not k.startswith("gap:")}
            for m in by_method}
-    ref_means = {n: (rv.get("mean", {}).get(n, {}) | rt.get("mean", {}).get(n, {})) for n in refs}
+    ref_means = {n: (rv.get("mean", {}).get(n, {}) | rt.get("mean", {}).get(n, {}) | rw.get("mean", {}).get(n, {}))
+                 for n in refs}
     data = {"mean": means, "sd": sds, "gap_closed": gaps,
             "garments": {m: sorted({r["garment"] for r in rs}) for m, rs in by_method.items()},
-            "best": rv.get("best", {}) | rt.get("best", {}),
+            "best": rv.get("best", {}) | rt.get("best", {}) | rw.get("best", {}),
             "references": {n: {k: v for k, v in row.items() if not k.startswith("gap:")}
                            for n, row in ref_means.items()},
             "reference_gap_closed": {n: {k[4:]: v for k, v in row.items() if k.startswith("gap:")}

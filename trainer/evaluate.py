@@ -17,6 +17,7 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -37,8 +38,12 @@ log = logging.getLogger(__name__)
 HIGHER_IS_BETTER = {"visual_psnr", "visual_ssim"}
 # lower is better for each; gap closed = (flat - method) / (flat - oracle)
 GAP_METRICS = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle_deg_inside",
-               "full_angle_deg_outside", "full_friction_mae", "full_friction_mae_inside",
+               "full_angle_deg_outside", "full_angle_deg_outside_lines", "full_angle_deg_outside_open",
+               "full_friction_mae", "full_friction_mae_inside",
                "full_friction_mae_outside", "tactile_fbsifid_seen", "full_fbsifid_seen")
+# How far from a sketch stroke the relief it draws reaches: a seam's or an edge's ridge (Gaussian, 1-1.2 px at the
+# synthetic renderer's 0.3 mm pitch) plus a stroke's offset from it (the sketch is an edge map of the photo)
+LINE_REACH_MM = 1.2
 GAP_TIE = 1e-9   # |flat - oracle| at or below this (relative to |flat|) leaves no gap to close
 
 
@@ -69,6 +74,7 @@ class Context:
         self.sketch, self.mask, self.visual = crop_tensors(self.g, self.origin, self.side)
         self.obj = self.crop(self.g.mask).astype(bool)
         self.inside = self.crop(touch_rect_mask(self.g, "train")) & self.obj
+        self.near_lines = near_strokes(self.crop(self.g.sketch), self.g.pixel_pitch_mm)
         self.patches = extract_patches(self.g, "test", crop_origin=self.origin, crop_size=(self.side, self.side),
                                        mode="centre")
         self._oracle = None
@@ -101,6 +107,19 @@ class Context:
             o = self.oracle()
             self._weave = (weave_split(self.g, o) if o is not None else None) or False
         return self._weave or None
+
+
+def near_strokes(sketch: np.ndarray, pitch_mm: float | None) -> np.ndarray | None:
+    """(H, W) bool: within LINE_REACH_MM of a stroke of the sketch (uint8, dark strokes on white paper), the
+    silhouette included; None without a pixel pitch (the reach is physical: a seam's ridge is as wide in mm at any
+    resolution)."""
+    if pitch_mm is None or not (np.isfinite(pitch_mm) and pitch_mm > 0):
+        return None
+    strokes = (np.asarray(sketch) < 128).astype(np.uint8)
+    if not strokes.any():
+        return np.zeros(strokes.shape, bool)
+    d = cv2.distanceTransform(1 - strokes, cv2.DIST_L2, 5)
+    return d <= LINE_REACH_MM / pitch_mm
 
 
 def find_unseen(g: Garment, side: int) -> list[Unseen]:
@@ -172,7 +191,8 @@ def score(ctx: Context, nets: Nets, vis: torch.Tensor | None, tac: torch.Tensor 
         out.update(_seen_patch_texture(ctx, nets, tac))
         truth = ctx.truth()
         if truth is not None:
-            s, u = full_field_scores(gx, gy, truth[0], truth[1], mask, ctx.inside, ctx.scale, ctx.origin)
+            s, u = full_field_scores(gx, gy, truth[0], truth[1], mask, ctx.inside, ctx.scale, ctx.origin,
+                                     ctx.near_lines)
             out.update(s)
             units.update(u)
             out["full_fbsifid_seen"] = fb_sifid_banks(channel_banks(tac[0].numpy()), ctx.banks("tactile"), mask)

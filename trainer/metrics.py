@@ -131,9 +131,12 @@ def visual_scores(fake: np.ndarray, real: np.ndarray, mask: np.ndarray,
 
 def full_field_scores(gx_fake: np.ndarray, gy_fake: np.ndarray, gx_true: np.ndarray, gy_true: np.ndarray,
                       mask: np.ndarray, inside: np.ndarray, scale: float,
-                      origin: tuple[int, int]) -> tuple[dict, dict[str, Units]]:
+                      origin: tuple[int, int], lines: np.ndarray | None = None) -> tuple[dict, dict[str, Units]]:
     """Angular error and friction-map MAE over the object, and over its parts inside / outside the training touch
-    rectangles (`inside`, (H, W) bool; outside is where the model had no tactile example: generalisation)."""
+    rectangles (`inside`, (H, W) bool; outside is where the model had no tactile example: generalisation). With
+    `lines` ((H, W) bool, near the sketch's strokes) the outside angle is split again: `_outside_lines`, relief the
+    sketch draws (seams, edges, pockets), and `_outside_open`, open cloth, where only the weave is left to get
+    right and the sketch says nothing about where its ridges sit."""
     ang = angle_map(gx_fake, gy_fake, gx_true, gy_true)
     f1 = friction_map(gx_fake, gy_fake, scale).astype(np.float64)
     f2 = friction_map(gx_true, gy_true, scale).astype(np.float64)
@@ -145,6 +148,10 @@ def full_field_scores(gx_fake: np.ndarray, gy_fake: np.ndarray, gx_true: np.ndar
     for suffix, w in parts.items():
         units[f"full_angle_deg{suffix}"] = block_units(ang, w, origin)
         units[f"full_friction_mae{suffix}"] = block_units(fr, w, origin)
+    if lines is not None:
+        out = parts["_outside"]
+        units["full_angle_deg_outside_lines"] = block_units(ang, out & lines, origin)
+        units["full_angle_deg_outside_open"] = block_units(ang, out & ~np.asarray(lines, bool), origin)
     scores = {k: value(k, u) for k, u in units.items() if len(u)}
     scores["full_inside_fraction"] = float(ins.sum() / m.sum()) if m.any() else float("nan")
     return scores, {k: u for k, u in units.items() if len(u)}

@@ -14,7 +14,7 @@ from trainer.augment import eval_crop_origin
 from trainer.config import load_config
 from trainer.data.synthetic import generate_dataset
 from trainer.data.touchclothing import extract_patches, load_garment
-from trainer.evaluate import Context, Nets, find_unseen, gap_closed, reference_predictions, score
+from trainer.evaluate import Context, Nets, find_unseen, gap_closed, near_strokes, reference_predictions, score
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.loop import Trainer
 from trainer.metrics import full_field_scores, tactile_patch_metrics, visual_scores
@@ -99,6 +99,47 @@ def test_inside_and_outside_masks_split_the_object_at_the_training_rectangles(ga
     f = s["full_inside_fraction"]
     assert s["full_angle_deg"] == pytest.approx((1 - f) * s["full_angle_deg_outside"], abs=1e-5)
     assert u["full_angle_deg"].den.sum() == ctx.obj.sum()
+
+
+def test_the_outside_angle_splits_into_the_sketchs_lines_and_open_cloth(garment):
+    """Exact where the sketch draws (outside the touches), flat in open cloth: zero error by the lines, flat's error
+    in open cloth, and the two parts pixel-weight back to the outside angle."""
+    ctx = _ctx(garment)
+    lines = ctx.near_lines
+    out = ctx.obj & ~ctx.inside
+    assert lines is not None and 0 < (out & lines).sum() < out.sum()
+    tx, ty = ctx.truth()
+    gx, gy = np.where(lines, tx, 0), np.where(lines, ty, 0)
+    s, u = full_field_scores(gx, gy, tx, ty, ctx.obj, ctx.inside, 0.05, ctx.origin, lines)
+    flat, _ = full_field_scores(0 * tx, 0 * ty, tx, ty, ctx.obj, ctx.inside, 0.05, ctx.origin, lines)
+    assert s["full_angle_deg_outside_lines"] == pytest.approx(0, abs=1e-5)
+    assert s["full_angle_deg_outside_open"] == pytest.approx(flat["full_angle_deg_outside_open"])
+    assert flat["full_angle_deg_outside_open"] > 0
+    share = (out & lines).sum() / out.sum()
+    for r in (s, flat):
+        assert r["full_angle_deg_outside"] == pytest.approx(
+            share * r["full_angle_deg_outside_lines"] + (1 - share) * r["full_angle_deg_outside_open"], rel=1e-5)
+    assert u["full_angle_deg_outside_lines"].den.sum() + u["full_angle_deg_outside_open"].den.sum() == out.sum()
+    # without the mask (no pixel pitch) there is no split, and nothing else changes
+    plain, _ = full_field_scores(gx, gy, tx, ty, ctx.obj, ctx.inside, 0.05, ctx.origin)
+    assert "full_angle_deg_outside_lines" not in plain
+    assert plain["full_angle_deg_outside"] == pytest.approx(s["full_angle_deg_outside"])
+
+
+@pytest.mark.parametrize("pitch, near, far", [(0.3, 4, 5), (0.6, 2, 3), (0.1, 12, 13)])
+def test_a_line_reaches_the_same_millimetres_at_any_pixel_pitch(pitch, near, far):
+    sketch = np.full((40, 40), 255, np.uint8)
+    sketch[:, 20] = 0                       # one vertical stroke
+    m = near_strokes(sketch, pitch)
+    assert m[:, 20].all() and m[:, 20 + near].all() and m[:, 20 - near].all()
+    assert not m[:, 20 + far].any() and not m[:, 20 - far].any()
+
+
+def test_no_lines_without_a_pixel_pitch_and_none_on_blank_paper():
+    blank = np.full((16, 16), 255, np.uint8)
+    assert near_strokes(blank, None) is None and near_strokes(blank, float("nan")) is None
+    assert near_strokes(blank, 0.0) is None
+    assert not near_strokes(blank, 0.3).any()
 
 
 def test_visual_metrics_look_inside_the_object_mask_only():

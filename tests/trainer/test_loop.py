@@ -195,6 +195,10 @@ def test_cli_all_eval_compare_on_synthetic(synth, tmp_path, capsys):
                     "--out", str(cmp_dir)]) == 0
     md = (cmp_dir / "compare.md").read_text()
     assert "| ours |" in md and "| pix2pix |" in md and "**" in md
+    assert "### Outside the touches: by the sketch's lines and in open cloth" in md and "open cloth° ↓" in md
+    table = json.loads((cmp_dir / "compare.json").read_text())
+    assert {"full_angle_deg_outside_lines", "full_angle_deg_outside_open"} <= set(table["mean"]["ours"])
+    assert "full_angle_deg_outside_open" in table["differences"]["rows"]["pix2pix"]
     assert (cmp_dir / "sheet_DenimShorts.png").is_file()
     capsys.readouterr()
     assert vtkiosk(["eval", "--run", str(tmp_path / "nothing")]) == 2
