@@ -39,6 +39,10 @@ class DataConfig:
     # is the one mirror that keeps a photo lit from the upper left (the synthetic lamp, most studio set-ups) lit from
     # there; 0 = off (the paper). trainer/recipe/transpose.py.
     transpose: float = 0.0
+    # Whether a mirrored crop also trains the visual branch and its discriminators (`ours` and its ablations). The
+    # lamp is only near the diagonal and its falloff is not symmetric, so a mirrored photo is lit a little wrong;
+    # false keeps every visual loss on crops as photographed and lets mirrored crops train the tactile side only.
+    transpose_visual: bool = True
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import torch
 from trainer.physical import dataset_pitch_mm
 from trainer import provenance
 from trainer.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
-from trainer.config import RunConfig
+from trainer.config import ConfigError, RunConfig
 from trainer.recipe.identity import recipe_differences
 from trainer.distributed import Dist, average_scalar
 from trainer.errors import TrainerError
@@ -78,6 +78,9 @@ class Trainer:
         self.main = self.rank == 0
         self.device = resolve_device(cfg.train.device, dist)
         set_determinism(cfg, self.device)
+        if not cfg.data.transpose_visual and not get_method(cfg.method).separable_visual:
+            raise ConfigError(f"data.transpose_visual=false needs a two-branch method (ours and its ablations); "
+                              f"{cfg.method} has one loss over both outputs")
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
         self.method.attach_ema(cfg.train.ema, cfg.train.ema_ramp, cfg.train.ema_probe_ramp)

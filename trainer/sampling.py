@@ -36,6 +36,7 @@ class Batch:
     origins: np.ndarray
     unpaired: np.ndarray
     origin: tuple[int, int]
+    mirrored: bool = False   # transposed across the crop's diagonal (data.transpose)
 
     def to(self, device: torch.device) -> "Batch":
         """The same batch with its tensors on `device` (data is drawn on the CPU, seeded, whatever trains it)."""

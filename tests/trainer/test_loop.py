@@ -78,6 +78,33 @@ def test_mirrored_crops_train_every_loss_of_ours(synth, tmp_path):
     assert all(np.isfinite(logs[k]) for k in ("t_l1", "t_gan", "v_l1", "d_tactile")), logs
 
 
+def test_mirrored_crops_can_train_the_tactile_side_alone(synth, tmp_path):
+    """data.transpose_visual=false: a mirrored step leaves the visual head and the visual D untouched (no visual
+    loss), while the tactile head and the tactile D learn from it."""
+    cfg = load_config("tiny", overrides=["train.steps=2", "data.transpose=1", "data.transpose_visual=false"])
+    tr = Trainer(cfg, _garment(synth), tmp_path / "run")
+    g = tr.method.G
+    before = {k: {n: p.detach().clone() for n, p in m.named_parameters()}
+              for k, m in (("visual", g.visual), ("tactile", g.tactile), ("DI", tr.method.nets["DI"]),
+                           ("DT", tr.method.nets["DT"]))}
+    tr.run()
+    logs = tr.history[-1]
+    assert "v_l1" not in logs and "v_gan" not in logs and "d_visual" not in logs
+    assert np.isfinite(logs["t_l1"]) and np.isfinite(logs["t_gan"])
+    for k, params in before.items():
+        now = dict((g.visual if k == "visual" else g.tactile if k == "tactile" else tr.method.nets[k])
+                   .named_parameters())
+        moved = any(not torch.equal(p, now[n]) for n, p in params.items())
+        assert moved == (k in ("tactile", "DT")), k
+
+
+def test_a_one_output_baseline_refuses_tactile_only_mirrors(synth, tmp_path):
+    from trainer.config import ConfigError
+    cfg = load_config("tiny", method="pix2pix", overrides=["data.transpose=0.5", "data.transpose_visual=false"])
+    with pytest.raises(ConfigError, match="needs a two-branch method"):
+        Trainer(cfg, _garment(synth), tmp_path / "run")
+
+
 def test_resume_is_bit_identical(synth, tmp_path):
     def cfg():
         return load_config("tiny", overrides=["train.steps=4", "train.deterministic=true", "train.ckpt_every=2"])

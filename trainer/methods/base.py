@@ -18,6 +18,8 @@ class Method(ABC):
 
     name = "base"
     generator_class = ""
+    # whether a mirrored crop can train its tactile side alone (`data.transpose_visual=false`): two-branch methods
+    separable_visual = False
 
     def __init__(self, cfg: RunConfig, *, side: int, dist: Dist | None = None, device: str = "cpu"):
         self.cfg = cfg

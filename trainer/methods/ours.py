@@ -32,6 +32,7 @@ def masked_l1(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor) -> torch.Tensor
 class Ours(Method):
     name = "ours"
     generator_class = "TwoBranchUNet"
+    separable_visual = True
     visual_gan = True
     tactile_gan = True
     visual_rec = True
@@ -110,6 +111,10 @@ class Ours(Method):
         real, fake = self.aug_visual(torch.cat([batch.sketch, visual], 1), torch.cat([batch.sketch, visual_fake], 1))
         return DI(real), DI(fake)
 
+    def trains_visual(self, batch: Batch) -> bool:
+        """False for a mirrored crop under `data.transpose_visual=false`: it trains the tactile side only."""
+        return not (batch.mirrored and not self.cfg.data.transpose_visual)
+
     def tactile_gan_weight(self, step: int) -> float:
         """`loss.tactile_gan`, ramped linearly from 0 over the first `loss.tactile_gan_ramp` of the schedule."""
         lc = self.cfg.loss
@@ -121,11 +126,12 @@ class Ours(Method):
         """Each weighted term of the generator loss, separately (tests backpropagate them one by one)."""
         lc = self.cfg.loss
         out: dict[str, torch.Tensor] = {}
-        if self.visual_rec:
+        visual_on = self.trains_visual(batch)
+        if self.visual_rec and visual_on:
             out["v_l1"] = lc.visual_l1 * F.l1_loss(visual_fake, batch.visual)
             if lc.visual_perceptual:
                 out["v_perc"] = lc.visual_perceptual * self.perceptual(visual_fake, batch.visual)
-        if self.visual_gan:
+        if self.visual_gan and visual_on:
             real_o, fake_o = self.visual_d(batch, batch.visual, visual_fake)
             out["v_gan"] = lc.visual_gan * g_loss(fake_o)
             if lc.feature_matching:
@@ -158,7 +164,7 @@ class Ours(Method):
         self.aug_tactile.reseed(self.cfg.train.seed * 1_000_003 + 2 * step + 1)
         visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
         # Discriminators first, on detached fakes.
-        if self.visual_gan:
+        if self.visual_gan and self.trains_visual(batch):
             DI = self.nets["DI"]
             self.opts["DI"].zero_grad(set_to_none=True)
             loss = d_loss(*self.visual_d(batch, batch.visual, visual_fake.detach()))

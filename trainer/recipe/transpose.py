@@ -24,4 +24,4 @@ def transpose_batch(b: "Batch") -> "Batch":
     return replace(b, sketch=t(b.sketch), mask=t(b.mask), visual=None if b.visual is None else t(b.visual),
                    gx=t(b.gy), gy=t(b.gx), contact=t(b.contact),
                    origins=np.ascontiguousarray(b.origins[:, ::-1]),
-                   unpaired=np.ascontiguousarray(b.unpaired[:, ::-1]))
+                   unpaired=np.ascontiguousarray(b.unpaired[:, ::-1]), mirrored=True)
