@@ -61,11 +61,25 @@ class EmulatorServer:
         self._sock: socket.socket | None = None
 
     def start(self) -> None:
+        """Bind and listen under a temporary name, then rename: the path appears only once it accepts, so a client
+        that waits for the file never meets a socket that refuses (bind creates the file before listen)."""
         if os.path.exists(self.path):
             os.unlink(self.path)
+        # short, in the same folder (a rename stays on one file system; a unix socket path has ~107 bytes)
+        tmp = os.path.join(os.path.dirname(self.path), f".{os.getpid()}.tmp")
+        if os.path.exists(tmp):
+            os.unlink(tmp)
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._sock.bind(self.path)
-        self._sock.listen(1)
+        try:
+            self._sock.bind(tmp)
+            self._sock.listen(1)
+            os.replace(tmp, self.path)
+        except OSError:
+            self._sock.close()
+            self._sock = None
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
 
     def stop(self) -> None:
         self._stop.set()

@@ -118,6 +118,33 @@ def test_registry_is_keyed_by_config_type():
 
 
 @pytest.mark.timeout(30)
+def test_the_emulators_socket_appears_only_once_it_listens(tmp_path, monkeypatch):
+    """A client waits for the socket file and then connects; bind() creates the file before listen(), so the server
+    binds a temporary name and renames it when listening (a loaded CI machine once hit that window)."""
+    import socket
+
+    from firmware_bridge.emulator.server import EmulatorServer
+    path = tmp_path / "bridge.sock"
+    seen = []
+    real_listen = socket.socket.listen
+
+    def listen(self, *a):
+        seen.append(path.exists())
+        return real_listen(self, *a)
+
+    monkeypatch.setattr(socket.socket, "listen", listen)
+    server = EmulatorServer(DeviceEmulator(EmulatorConfig(panel_w=64, panel_h=32, tile_w=32, tile_h=32)), path)
+    server.start()
+    try:
+        assert seen == [False] and path.exists()
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["bridge.sock"]   # no temporary name left behind
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(str(path))
+        c.close()
+    finally:
+        server._sock.close()
+
+
 def test_emulator_as_a_separate_process_over_a_unix_socket(tmp_path):
     sock = str(tmp_path / "bridge.sock")
     proc = subprocess.Popen([sys.executable, "-m", "firmware_bridge.cli", "emulate", "--socket", sock,
