@@ -149,9 +149,9 @@ def full_field_scores(gx_fake: np.ndarray, gy_fake: np.ndarray, gx_true: np.ndar
         units[f"full_angle_deg{suffix}"] = block_units(ang, w, origin)
         units[f"full_friction_mae{suffix}"] = block_units(fr, w, origin)
     if lines is not None:
-        out = parts["_outside"]
-        units["full_angle_deg_outside_lines"] = block_units(ang, out & lines, origin)
-        units["full_angle_deg_outside_open"] = block_units(ang, out & ~np.asarray(lines, bool), origin)
+        out, near = parts["_outside"], np.asarray(lines, bool)
+        units["full_angle_deg_outside_lines"] = block_units(ang, out & near, origin)
+        units["full_angle_deg_outside_open"] = block_units(ang, out & ~near, origin)
     scores = {k: value(k, u) for k, u in units.items() if len(u)}
     scores["full_inside_fraction"] = float(ins.sum() / m.sum()) if m.any() else float("nan")
     return scores, {k: u for k, u in units.items() if len(u)}

@@ -7,6 +7,7 @@ client replaces the old one (like replugging the host side). Runs in real time.
 from __future__ import annotations
 
 import os
+import secrets
 import selectors
 import socket
 import struct
@@ -65,10 +66,8 @@ class EmulatorServer:
         that waits for the file never meets a socket that refuses (bind creates the file before listen)."""
         if os.path.exists(self.path):
             os.unlink(self.path)
-        # short, in the same folder (a rename stays on one file system; a unix socket path has ~107 bytes)
-        tmp = os.path.join(os.path.dirname(self.path), f".{os.getpid()}.tmp")
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        # short, unique, in the same folder (a rename stays on one file system; a unix socket path has ~107 bytes)
+        tmp = os.path.join(os.path.dirname(self.path), f".{secrets.token_hex(4)}.tmp")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             self._sock.bind(tmp)
