@@ -37,11 +37,16 @@ class DataConfig:
     # Probability that a training crop is mirrored across its main diagonal (sketch, mask, photo, patches; the
     # tactile patches' gx and gy trade places): each touch then teaches relief at a second orientation. The diagonal
     # is the one mirror that keeps a photo lit from the upper left (the synthetic lamp, most studio set-ups) lit from
-    # there; 0 = off (the paper). trainer/recipe/transpose.py.
+    # there; 0 = off (the paper). trainer/recipe/mirror.py.
     transpose: float = 0.0
-    # Whether a mirrored crop also trains the visual branch and its discriminators (`ours` and its ablations). The
-    # lamp is only near the diagonal and its falloff is not symmetric, so a mirrored photo is lit a little wrong;
-    # false keeps every visual loss on crops as photographed and lets mirrored crops train the tactile side only.
+    # Probability that a training crop is mirrored left to right (gx changes sign), after any diagonal mirror: it
+    # keeps corduroy's wales and a knit's courses where the diagonal turns them, but moves the lamp to the upper
+    # right, so it pairs with transpose_visual=false. 0 = off (the paper).
+    flip: float = 0.0
+    # Whether a mirrored crop (either mirror) also trains the visual branch and its discriminators (`ours` and its
+    # ablations). The lamp is only near the diagonal and its falloff is not symmetric, so a mirrored photo is lit a
+    # little wrong; false keeps every visual loss on crops as photographed and lets mirrored crops train the tactile
+    # side only.
     transpose_visual: bool = True
 
 
@@ -241,8 +246,9 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError("train.ema_probe_ramp needs train.ema (the probe shares its decay cap)")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
-    if not 0.0 <= cfg.data.transpose <= 1.0:
-        raise ConfigError(f"data.transpose is a probability, in [0, 1]; got {cfg.data.transpose}")
+    for key in ("transpose", "flip"):
+        if not 0.0 <= getattr(cfg.data, key) <= 1.0:
+            raise ConfigError(f"data.{key} is a probability, in [0, 1]; got {getattr(cfg.data, key)}")
     try:
         parse_policy(cfg.loss.diffaug)
     except ValueError as exc:

@@ -19,7 +19,7 @@ from kiosk.contract.sketch import network_input
 from trainer.augment import eval_crop_origin, random_crop_origin, resolve_crop
 from trainer.config import DataConfig
 from trainer.data.touchclothing import PATCH, Garment, PatchSet, extract_patches, friction_scale, load_garment
-from trainer.recipe.transpose import transpose_batch
+from trainer.recipe.mirror import flip_batch, transpose_batch
 
 
 @dataclass
@@ -36,7 +36,7 @@ class Batch:
     origins: np.ndarray
     unpaired: np.ndarray
     origin: tuple[int, int]
-    mirrored: bool = False   # transposed across the crop's diagonal (data.transpose)
+    mirrored: bool = False   # mirrored across the crop's diagonal or left to right (data.transpose, data.flip)
 
     def to(self, device: torch.device) -> "Batch":
         """The same batch with its tensors on `device` (data is drawn on the CPU, seeded, whatever trains it)."""
@@ -128,6 +128,8 @@ class GarmentData:
         # drawn only when asked for, so runs without it keep the stream they always had
         if self.cfg.transpose > 0 and rng.random() < self.cfg.transpose:
             b = transpose_batch(b)
+        if self.cfg.flip > 0 and rng.random() < self.cfg.flip:
+            b = flip_batch(b)
         return b
 
     def _unpaired(self, rng, side, mcrop, variance) -> np.ndarray:

@@ -68,9 +68,11 @@ def test_a_tactile_head_that_reads_the_visual_head_trains_and_its_checkpoint_reb
     assert isinstance(net, TwoBranchUNet) and net.model_config()["tactile_reads_visual"] is True
 
 
-def test_mirrored_crops_train_every_loss_of_ours(synth, tmp_path):
-    """data.transpose=1: every step sees a mirrored crop; the tactile D, unpaired patches and every loss run on it."""
-    cfg = load_config("tiny", overrides=["train.steps=2", "data.transpose=1"])
+@pytest.mark.parametrize("mirror", ["transpose", "flip"])
+def test_mirrored_crops_train_every_loss_of_ours(synth, tmp_path, mirror):
+    """data.transpose=1 or data.flip=1: every step sees a mirrored crop; the tactile D, unpaired patches and every
+    loss run on it."""
+    cfg = load_config("tiny", overrides=["train.steps=2", f"data.{mirror}=1"])
     tr = Trainer(cfg, _garment(synth), tmp_path / "run")
     assert tr.data.batch(0).sketch.shape[-1] == tr.data.side
     tr.run()
@@ -78,10 +80,11 @@ def test_mirrored_crops_train_every_loss_of_ours(synth, tmp_path):
     assert all(np.isfinite(logs[k]) for k in ("t_l1", "t_gan", "v_l1", "d_tactile")), logs
 
 
-def test_mirrored_crops_can_train_the_tactile_side_alone(synth, tmp_path):
-    """data.transpose_visual=false: a mirrored step leaves the visual head and the visual D untouched (no visual
-    loss), while the tactile head and the tactile D learn from it."""
-    cfg = load_config("tiny", overrides=["train.steps=2", "data.transpose=1", "data.transpose_visual=false"])
+@pytest.mark.parametrize("mirror", ["transpose", "flip"])
+def test_mirrored_crops_can_train_the_tactile_side_alone(synth, tmp_path, mirror):
+    """data.transpose_visual=false: a mirrored step (either mirror) leaves the visual head and the visual D untouched
+    (no visual loss), while the tactile head and the tactile D learn from it."""
+    cfg = load_config("tiny", overrides=["train.steps=2", f"data.{mirror}=1", "data.transpose_visual=false"])
     tr = Trainer(cfg, _garment(synth), tmp_path / "run")
     g = tr.method.G
     before = {k: {n: p.detach().clone() for n, p in m.named_parameters()}

@@ -121,9 +121,9 @@ def test_origin_range_matches_published_for_full_frame_object():
     assert min(xs) >= 4 and max(xs) <= 260 and len(set(xs)) > 50
 
 
-def _mirrored(real_layout_dir, p: float) -> GarmentData:
+def _mirrored(real_layout_dir, p: float, flip: float = 0.0) -> GarmentData:
     return GarmentData(real_layout_dir / "singleskit_DenimToy_padded_1800_x1",
-                       DataConfig(crop=256, patches=16, unpaired=8, transpose=p), seed=3)
+                       DataConfig(crop=256, patches=16, unpaired=8, transpose=p, flip=flip), seed=3)
 
 
 def test_a_mirrored_crop_is_the_garment_transposed_with_gx_and_gy_traded(real_layout_dir):
@@ -146,6 +146,40 @@ def test_a_mirrored_crop_is_the_garment_transposed_with_gx_and_gy_traded(real_la
     m = b.mask[0, 0].numpy()
     for x, y in b.unpaired.tolist():
         assert m[y + 16, x + 16] == 1   # unpaired corners still land on the (mirrored) object
+
+
+def test_a_flipped_crop_is_the_garment_mirrored_left_to_right_with_gx_negated(real_layout_dir):
+    """data.flip=1: every crop is the garment mirrored left to right, read at the same place; the x slope changes
+    sign (h'(x) = h(W - 1 - x) gives dh'/dx = -dh/dx mirrored) and the y slope does not."""
+    data = _mirrored(real_layout_dir, 0.0, flip=1.0)
+    gx_full, gy_full = field_gx((1800, 1800))
+    b = data.batch(5)
+    ox, oy = b.origin
+    s = data.side
+    m_crop = data.g.mask[oy:oy + s, ox:ox + s]
+    raw = data.g.sketch[oy:oy + s, ox:ox + s].astype(np.float32) / 127.5 - 1
+    np.testing.assert_allclose(b.sketch[0, 0].numpy(), (raw * m_crop)[:, ::-1], atol=1e-6)
+    np.testing.assert_allclose(b.visual[0].numpy(), np.transpose(
+        (data.g.visual[oy:oy + s, ox:ox + s].astype(np.float32) / 127.5 - 1) * m_crop[..., None],
+        (2, 0, 1))[:, :, ::-1], atol=1e-6)
+    assert b.mirrored
+    for k, (px, py) in enumerate(b.origins.tolist()):
+        # the patch at (px, py) of the flipped crop is the patch at (s - 32 - px, py) of the garment's crop, flipped
+        src = (slice(oy + py, oy + py + 32), slice(ox + s - 32 - px, ox + s - px))
+        np.testing.assert_allclose(b.gx[k, 0].numpy(), -gx_full[src][:, ::-1], atol=1e-6)
+        np.testing.assert_allclose(b.gy[k, 0].numpy(), gy_full[src][:, ::-1], atol=1e-6)
+    m = b.mask[0, 0].numpy()
+    for x, y in b.unpaired.tolist():
+        assert m[y + 16, x + 16] == 1
+
+
+def test_the_flip_negates_a_height_fields_x_slope():
+    rng = np.random.default_rng(1)
+    h = cv2.GaussianBlur(rng.normal(size=(64, 64)).astype(np.float32), (0, 0), 3)
+    gy, gx = np.gradient(h)
+    gy_f, gx_f = np.gradient(h[:, ::-1])
+    np.testing.assert_allclose(gx_f, -gx[:, ::-1], atol=1e-6)
+    np.testing.assert_allclose(gy_f, gy[:, ::-1], atol=1e-6)
 
 
 def test_the_mirror_turns_a_height_fields_x_slope_into_its_y_slope():
@@ -173,9 +207,10 @@ def test_mirroring_off_keeps_the_stream_and_half_mirrors_about_half(real_layout_
     assert 8 <= flips <= 32   # Binomial(40, 0.5): outside this with probability < 1e-4
 
 
+@pytest.mark.parametrize("key", ["transpose", "flip"])
 @pytest.mark.parametrize("value, says", [("1.5", "is a probability"), ("-0.1", "is a probability"),
                                          ("nan", "must be a finite number")])
-def test_a_mirror_probability_outside_0_1_is_refused(value, says):
+def test_a_mirror_probability_outside_0_1_is_refused(key, value, says):
     from trainer.config import ConfigError, load_config
-    with pytest.raises(ConfigError, match=f"data.transpose {says}"):
-        load_config("tiny", overrides=[f"data.transpose={value}"])
+    with pytest.raises(ConfigError, match=f"data.{key} {says}"):
+        load_config("tiny", overrides=[f"data.{key}={value}"])
