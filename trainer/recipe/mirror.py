@@ -3,9 +3,10 @@
 The tactile branch learns relief only where the garment was touched, so the few touches are all it has to learn how
 a fold in the sketch becomes a ridge in the normal map. Mirroring a crop shows it each touch a second time. The
 height field's derivatives follow the mirror: across the diagonal gx and gy trade places; left to right gx changes
-sign. Which mirror helps depends on the weave, because a mirror also mirrors the weave: the diagonal keeps a twill
-whose ribs run at 45 degrees and turns corduroy's wales and a knit's courses by 90 degrees, while left to right keeps
-wales and courses and turns the twill. Only the diagonal keeps a photo lit from the upper left lit from there.
+sign. A mirror also mirrors the weave: the diagonal keeps a twill whose ribs run at 45 degrees and turns corduroy's
+wales and a knit's courses by 90 degrees; left to right keeps wales and courses and turns the twill. Only the
+diagonal keeps a photo lit from the upper left lit from there. Both are measured ablations, off by default
+(docs/training.md, "Where the outside error sits").
 """
 from __future__ import annotations
 
