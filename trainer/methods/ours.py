@@ -112,7 +112,8 @@ class Ours(Method):
         return DI(real), DI(fake)
 
     def trains_visual(self, batch: Batch) -> bool:
-        """False for a mirrored crop (either mirror) under `data.transpose_visual=false`: it trains the tactile side only."""
+        """False for a mirrored crop (either mirror) under `data.transpose_visual=false`: it trains the tactile side
+        only."""
         return not (batch.mirrored and not self.cfg.data.transpose_visual)
 
     def tactile_gan_weight(self, step: int) -> float:
