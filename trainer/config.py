@@ -48,6 +48,11 @@ class DataConfig:
     # little wrong; false keeps every visual loss on crops as photographed and lets mirrored crops train the tactile
     # side only.
     transpose_visual: bool = True
+    # Whether a mirrored crop is trained beside the crop as photographed, in the same step, instead of in its place
+    # (`ours` and its ablations): a second generator pass on the mirrored twin trains the tactile side only, the
+    # tactile terms are the mean over both passes, and every step trains the visual branch. A mirrored step then
+    # costs about 1.6 times a plain one. Needs data.transpose or data.flip above 0.
+    mirror_extra: bool = False
 
 
 @dataclass(frozen=True)
@@ -249,6 +254,9 @@ def validate(cfg: RunConfig) -> None:
     for key in ("transpose", "flip"):
         if not 0.0 <= getattr(cfg.data, key) <= 1.0:
             raise ConfigError(f"data.{key} is a probability, in [0, 1]; got {getattr(cfg.data, key)}")
+    if cfg.data.mirror_extra and not (cfg.data.transpose or cfg.data.flip):
+        raise ConfigError("data.mirror_extra adds a mirrored twin to mirrored steps; set data.transpose or data.flip "
+                          "above 0 for there to be any")
     try:
         parse_policy(cfg.loss.diffaug)
     except ValueError as exc:

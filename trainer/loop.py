@@ -78,9 +78,11 @@ class Trainer:
         self.main = self.rank == 0
         self.device = resolve_device(cfg.train.device, dist)
         set_determinism(cfg, self.device)
-        if not cfg.data.transpose_visual and not get_method(cfg.method).separable_visual:
-            raise ConfigError(f"data.transpose_visual=false needs a two-branch method (ours and its ablations); "
-                              f"{cfg.method} has one loss over both outputs")
+        for key, tactile_only in (("transpose_visual=false", not cfg.data.transpose_visual),
+                                  ("mirror_extra=true", cfg.data.mirror_extra)):
+            if tactile_only and not get_method(cfg.method).separable_visual:
+                raise ConfigError(f"data.{key} needs a two-branch method (ours and its ablations); "
+                                  f"{cfg.method} has one loss over both outputs")
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
         self.method.attach_ema(cfg.train.ema, cfg.train.ema_ramp, cfg.train.ema_probe_ramp)

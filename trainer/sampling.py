@@ -37,13 +37,15 @@ class Batch:
     unpaired: np.ndarray
     origin: tuple[int, int]
     mirrored: bool = False   # mirrored across the crop's diagonal or left to right (data.transpose, data.flip)
+    twin: "Batch | None" = None   # the same crop mirrored, trained beside it on the tactile side (data.mirror_extra)
 
     def to(self, device: torch.device) -> "Batch":
         """The same batch with its tensors on `device` (data is drawn on the CPU, seeded, whatever trains it)."""
         if self.sketch.device == torch.device(device):
             return self
         moved = {k: getattr(self, k) for k in ("sketch", "mask", "visual", "gx", "gy", "contact")}
-        return replace(self, **{k: (v.to(device) if v is not None else None) for k, v in moved.items()})
+        return replace(self, **{k: (v.to(device) if v is not None else None) for k, v in moved.items()},
+                       twin=None if self.twin is None else self.twin.to(device))
 
 
 def crop_tensors(g: Garment, origin: tuple[int, int], side: int, *, sketch=None, mask=None, visual=None):
@@ -124,12 +126,14 @@ class GarmentData:
         idx = rng.choice(len(ps), size=k, replace=len(ps) < k, p=p)
         gx, gy, c = patches_to_tensors(ps, idx)
         unpaired = self._unpaired(rng, side, mcrop, variance)
-        b = Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
+        plain = b = Batch(sk, mk, vis, gx, gy, c, ps.origin[idx], unpaired, origin)
         # drawn only when asked for, so runs without it keep the stream they always had
         if self.cfg.transpose > 0 and rng.random() < self.cfg.transpose:
             b = transpose_batch(b)
         if self.cfg.flip > 0 and rng.random() < self.cfg.flip:
             b = flip_batch(b)
+        if self.cfg.mirror_extra and b.mirrored:
+            return replace(plain, twin=b)
         return b
 
     def _unpaired(self, rng, side, mcrop, variance) -> np.ndarray:

@@ -101,11 +101,39 @@ def test_mirrored_crops_can_train_the_tactile_side_alone(synth, tmp_path, mirror
         assert moved == (k in ("tactile", "DT")), k
 
 
-def test_a_one_output_baseline_refuses_tactile_only_mirrors(synth, tmp_path):
+def test_a_mirrored_twin_trains_beside_the_crop_and_its_tactile_terms_are_the_mean(synth, tmp_path):
+    """data.mirror_extra: the step trains every loss on the crop as photographed (the visual head and D move) and
+    the tactile terms on the mirrored twin too; each logged tactile term is the mean over the two crops."""
+    cfg = load_config("tiny", overrides=["train.steps=1", "data.flip=1", "data.mirror_extra=true"])
+    tr = Trainer(cfg, _garment(synth), tmp_path / "run")
+    m = tr.method
+    batch = tr.data.batch(0)
+    assert batch.twin is not None and not batch.mirrored
+    with torch.no_grad():
+        one = m.generator_losses(batch, *m.G(batch.sketch, batch.mask))
+        two = m.generator_losses(batch.twin, *m.G(batch.twin.sketch, batch.twin.mask))
+    assert set(two) == {k for k in one if k.startswith("t_")}      # the twin adds no visual term
+    assert abs(two["t_l1"] - one["t_l1"]) > 1e-4                  # so the mean below says something
+    visual_before = [p.detach().clone() for p in m.G.visual.parameters()]
+    logs = m.step(batch, 0)
+    assert logs["t_l1"] == pytest.approx(float(one["t_l1"] + two["t_l1"]) / 2, rel=1e-4)
+    assert logs["v_l1"] == pytest.approx(float(one["v_l1"]), rel=1e-4)
+    assert "d_visual" in logs and np.isfinite(logs["d_tactile"])
+    assert any(not torch.equal(a, b) for a, b in zip(visual_before, m.G.visual.parameters()))
+
+
+@pytest.mark.parametrize("key", ["data.transpose_visual=false", "data.mirror_extra=true"])
+def test_a_one_output_baseline_refuses_tactile_only_mirrors(synth, tmp_path, key):
     from trainer.config import ConfigError
-    cfg = load_config("tiny", method="pix2pix", overrides=["data.transpose=0.5", "data.transpose_visual=false"])
+    cfg = load_config("tiny", method="pix2pix", overrides=["data.transpose=0.5", key])
     with pytest.raises(ConfigError, match="needs a two-branch method"):
         Trainer(cfg, _garment(synth), tmp_path / "run")
+
+
+def test_a_twin_without_a_mirror_is_refused():
+    from trainer.config import ConfigError
+    with pytest.raises(ConfigError, match="data.mirror_extra adds a mirrored twin"):
+        load_config("tiny", overrides=["data.mirror_extra=true"])
 
 
 def test_resume_is_bit_identical(synth, tmp_path):

@@ -10,6 +10,7 @@ from tests.conftest import field_gx
 from trainer.augment import eval_crop_origin, object_bbox, origin_range, random_crop_origin
 from trainer.config import DataConfig
 from trainer.data.synthetic import generate_dataset
+from trainer.recipe.mirror import flip_batch
 from trainer.sampling import GarmentData, cut, laplacian_weights, window_variance
 
 
@@ -171,6 +172,26 @@ def test_a_flipped_crop_is_the_garment_mirrored_left_to_right_with_gx_negated(re
     m = b.mask[0, 0].numpy()
     for x, y in b.unpaired.tolist():
         assert m[y + 16, x + 16] == 1
+
+
+def test_mirror_extra_keeps_the_crop_as_photographed_and_carries_the_mirror_as_its_twin(real_layout_dir, data):
+    """data.mirror_extra: a mirrored step trains the crop as photographed (the same draw as with mirrors off) and
+    the same crop mirrored beside it; an unmirrored step has no twin."""
+    extra = GarmentData(real_layout_dir / "singleskit_DenimToy_padded_1800_x1",
+                        DataConfig(crop=256, patches=16, unpaired=8, flip=0.5, mirror_extra=True), seed=3)
+    twins = 0
+    for step in range(12):
+        a, b = data.batch(step), extra.batch(step)
+        assert not b.mirrored and torch.equal(a.sketch, b.sketch) and torch.equal(a.gx, b.gx)
+        assert np.array_equal(a.origins, b.origins) and np.array_equal(a.unpaired, b.unpaired)
+        if b.twin is not None:
+            twins += 1
+            want = flip_batch(a)
+            assert b.twin.mirrored and b.twin.twin is None
+            for k in ("sketch", "mask", "visual", "gx", "gy", "contact"):
+                assert torch.equal(getattr(b.twin, k), getattr(want, k)), k
+            assert np.array_equal(b.twin.origins, want.origins)
+    assert 0 < twins < 12
 
 
 def test_the_flip_negates_a_height_fields_x_slope():

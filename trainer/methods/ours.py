@@ -112,9 +112,10 @@ class Ours(Method):
         return DI(real), DI(fake)
 
     def trains_visual(self, batch: Batch) -> bool:
-        """False for a mirrored crop (either mirror) under `data.transpose_visual=false`: it trains the tactile side
-        only."""
-        return not (batch.mirrored and not self.cfg.data.transpose_visual)
+        """False for a mirrored crop (either mirror) under `data.transpose_visual=false`, and for the mirrored twin
+        of `data.mirror_extra`: they train the tactile side only."""
+        d = self.cfg.data
+        return not batch.mirrored or (d.transpose_visual and not d.mirror_extra)
 
     def tactile_gan_weight(self, step: int) -> float:
         """`loss.tactile_gan`, ramped linearly from 0 over the first `loss.tactile_gan_ramp` of the schedule."""
@@ -158,12 +159,31 @@ class Ours(Method):
                 out["t_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
         return out
 
+    def tactile_d_loss(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor):
+        """(DT's loss, its R1 penalty on the real patches; 0 when `loss.tactile_r1` is off) for one crop, on
+        detached fakes."""
+        real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake.detach())
+        gamma = self.cfg.loss.tactile_r1
+        if gamma > 0:
+            real.requires_grad_(True)
+        real_o, fake_o, unpaired_o = self.tactile_d(real, fake, unpaired)
+        loss = d_loss(real_o, fake_o)
+        if unpaired_o is not None:
+            loss = loss + d_loss_fake(unpaired_o)
+        r1 = r1_penalty(real_o, real) if gamma > 0 else loss.new_zeros(())
+        return loss, r1
+
     def step(self, batch: Batch, step: int) -> dict[str, float]:
         logs: dict[str, float] = {}
         # one augmentation stream per step, so a resumed run augments exactly as an uninterrupted one
         self.aug_visual.reseed(self.cfg.train.seed * 1_000_003 + 2 * step)
         self.aug_tactile.reseed(self.cfg.train.seed * 1_000_003 + 2 * step + 1)
-        visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
+        twin = batch.twin
+        if twin is None:
+            visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
+        else:   # one pass over both crops (G's norms are per image), so a distributed G sees one forward
+            v2, t2 = self.G(torch.cat([batch.sketch, twin.sketch]), torch.cat([batch.mask, twin.mask]))
+            (visual_fake, twin_visual), (tactile_fake, twin_tactile) = v2.split(1), t2.split(1)
         # Discriminators first, on detached fakes.
         if self.visual_gan and self.trains_visual(batch):
             DI = self.nets["DI"]
@@ -178,17 +198,13 @@ class Ours(Method):
         if self.tactile_gan:
             DT = self.nets["DT"]
             self.opts["DT"].zero_grad(set_to_none=True)
-            real, fake, unpaired = self.tactile_inputs(batch, visual_fake, tactile_fake.detach())
+            loss, r1 = self.tactile_d_loss(batch, visual_fake, tactile_fake)
+            if twin is not None:
+                twin_loss, twin_r1 = self.tactile_d_loss(twin, twin_visual, twin_tactile)
+                loss, r1 = (loss + twin_loss) / 2, (r1 + twin_r1) / 2
+            logs["d_tactile"] = loss.item()
             gamma = self.cfg.loss.tactile_r1
             if gamma > 0:
-                real.requires_grad_(True)
-            real_o, fake_o, unpaired_o = self.tactile_d(real, fake, unpaired)
-            loss = d_loss(real_o, fake_o)
-            if unpaired_o is not None:
-                loss = loss + d_loss_fake(unpaired_o)
-            logs["d_tactile"] = loss.item()
-            if gamma > 0:
-                r1 = r1_penalty(real_o, real)
                 logs["d_tactile_r1"] = r1.item()
                 loss = loss + gamma / 2 * r1
             loss.backward()
@@ -199,6 +215,9 @@ class Ours(Method):
             self._requires_grad(net, False)
         self.opts["G"].zero_grad(set_to_none=True)
         terms = self.generator_losses(batch, visual_fake, tactile_fake, step)
+        if twin is not None:   # the twin adds tactile terms only; each is the mean over the two crops
+            for k, v in self.generator_losses(twin, twin_visual, twin_tactile, step).items():
+                terms[k] = (terms[k] + v) / 2
         total = sum(terms.values())
         total.backward()
         self.opts["G"].step()
