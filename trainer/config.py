@@ -53,6 +53,10 @@ class DataConfig:
     # tactile terms are the mean over both passes, and every step trains the visual branch. A mirrored step then
     # costs about 1.6 times a plain one. Needs data.transpose or data.flip above 0.
     mirror_extra: bool = False
+    # Whether that twin also trains the tactile GAN (its patches are shown to the tactile D, and its GAN and
+    # feature-matching terms reach G). False keeps the adversarial texture on crops as photographed and lets the twin
+    # teach relief through the reconstruction terms only.
+    twin_gan: bool = True
 
 
 @dataclass(frozen=True)
@@ -254,6 +258,8 @@ def validate(cfg: RunConfig) -> None:
     for key in ("transpose", "flip"):
         if not 0.0 <= getattr(cfg.data, key) <= 1.0:
             raise ConfigError(f"data.{key} is a probability, in [0, 1]; got {getattr(cfg.data, key)}")
+    if not cfg.data.twin_gan and not cfg.data.mirror_extra:
+        raise ConfigError("data.twin_gan=false says what a mirrored twin trains; it needs data.mirror_extra=true")
     if cfg.data.mirror_extra and not (cfg.data.transpose or cfg.data.flip):
         raise ConfigError("data.mirror_extra adds a mirrored twin to mirrored steps; set data.transpose or data.flip "
                           "above 0 for there to be any")

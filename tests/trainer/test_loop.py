@@ -101,21 +101,30 @@ def test_mirrored_crops_can_train_the_tactile_side_alone(synth, tmp_path, mirror
         assert moved == (k in ("tactile", "DT")), k
 
 
-def test_a_mirrored_twin_trains_beside_the_crop_and_its_tactile_terms_are_the_mean(synth, tmp_path):
+@pytest.mark.parametrize("twin_gan", [True, False])
+def test_a_mirrored_twin_trains_beside_the_crop_and_its_tactile_terms_are_the_mean(synth, tmp_path, twin_gan):
     """data.mirror_extra: the step trains every loss on the crop as photographed (the visual head and D move) and
-    the tactile terms on the mirrored twin too; each logged tactile term is the mean over the two crops."""
-    cfg = load_config("tiny", overrides=["train.steps=1", "data.flip=1", "data.mirror_extra=true"])
+    the tactile terms on the mirrored twin too; each logged tactile term is the mean over the two crops. Under
+    data.twin_gan=false the tactile D sees the crop as photographed only, and the twin adds no GAN term."""
+    cfg = load_config("tiny", overrides=["train.steps=1", "data.flip=1", "data.mirror_extra=true",
+                                         f"data.twin_gan={str(twin_gan).lower()}"])
     tr = Trainer(cfg, _garment(synth), tmp_path / "run")
     m = tr.method
     batch = tr.data.batch(0)
     assert batch.twin is not None and not batch.mirrored
     with torch.no_grad():
-        one = m.generator_losses(batch, *m.G(batch.sketch, batch.mask))
-        two = m.generator_losses(batch.twin, *m.G(batch.twin.sketch, batch.twin.mask))
-    assert set(two) == {k for k in one if k.startswith("t_")}      # the twin adds no visual term
+        fakes = m.G(batch.sketch, batch.mask), m.G(batch.twin.sketch, batch.twin.mask)
+        one = m.generator_losses(batch, *fakes[0])
+        two = m.generator_losses(batch.twin, *fakes[1], gan=twin_gan)
+    tactile = {k for k in one if k.startswith("t_")}
+    assert set(two) == (tactile if twin_gan else tactile - {"t_gan", "t_fm"})   # the twin adds no visual term
     assert abs(two["t_l1"] - one["t_l1"]) > 1e-4                  # so the mean below says something
+    m.aug_tactile.reseed(cfg.train.seed * 1_000_003 + 1)           # the stream the step's tactile D draws from
+    d_one = m.tactile_d_loss(batch, *fakes[0])[0].item()
+    d_two = m.tactile_d_loss(batch.twin, *fakes[1])[0].item()
     visual_before = [p.detach().clone() for p in m.G.visual.parameters()]
     logs = m.step(batch, 0)
+    assert logs["d_tactile"] == pytest.approx((d_one + d_two) / 2 if twin_gan else d_one, rel=1e-4)
     assert logs["t_l1"] == pytest.approx(float(one["t_l1"] + two["t_l1"]) / 2, rel=1e-4)
     assert logs["v_l1"] == pytest.approx(float(one["v_l1"]), rel=1e-4)
     assert "d_visual" in logs and np.isfinite(logs["d_tactile"])
@@ -134,6 +143,8 @@ def test_a_twin_without_a_mirror_is_refused():
     from trainer.config import ConfigError
     with pytest.raises(ConfigError, match="data.mirror_extra adds a mirrored twin"):
         load_config("tiny", overrides=["data.mirror_extra=true"])
+    with pytest.raises(ConfigError, match="needs data.mirror_extra=true"):
+        load_config("tiny", overrides=["data.flip=0.5", "data.twin_gan=false"])
 
 
 def test_resume_is_bit_identical(synth, tmp_path):

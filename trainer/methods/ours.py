@@ -124,8 +124,9 @@ class Ours(Method):
         return lc.tactile_gan * (min(1.0, step / ramp) if ramp > 0 else 1.0)
 
     def generator_losses(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
-                         step: int = 0) -> dict[str, torch.Tensor]:
-        """Each weighted term of the generator loss, separately (tests backpropagate them one by one)."""
+                         step: int = 0, *, gan: bool = True) -> dict[str, torch.Tensor]:
+        """Each weighted term of the generator loss, separately (tests backpropagate them one by one); `gan=False`
+        leaves out the tactile GAN and feature-matching terms (a twin under `data.twin_gan=false`)."""
         lc = self.cfg.loss
         out: dict[str, torch.Tensor] = {}
         visual_on = self.trains_visual(batch)
@@ -149,7 +150,7 @@ class Ours(Method):
                                                                      gt * batch.contact)
         if self.texture is not None:
             out["t_tex"] = lc.tactile_texture * self.texture(tp, gt, batch.contact)
-        if self.tactile_gan:
+        if self.tactile_gan and gan:
             real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake))
             gan = g_loss(fake_o)
             if unpaired_o is not None:
@@ -199,7 +200,7 @@ class Ours(Method):
             DT = self.nets["DT"]
             self.opts["DT"].zero_grad(set_to_none=True)
             loss, r1 = self.tactile_d_loss(batch, visual_fake, tactile_fake)
-            if twin is not None:
+            if twin is not None and self.cfg.data.twin_gan:
                 twin_loss, twin_r1 = self.tactile_d_loss(twin, twin_visual, twin_tactile)
                 loss, r1 = (loss + twin_loss) / 2, (r1 + twin_r1) / 2
             logs["d_tactile"] = loss.item()
@@ -216,7 +217,8 @@ class Ours(Method):
         self.opts["G"].zero_grad(set_to_none=True)
         terms = self.generator_losses(batch, visual_fake, tactile_fake, step)
         if twin is not None:   # the twin adds tactile terms only; each is the mean over the two crops
-            for k, v in self.generator_losses(twin, twin_visual, twin_tactile, step).items():
+            for k, v in self.generator_losses(twin, twin_visual, twin_tactile, step,
+                                              gan=self.cfg.data.twin_gan).items():
                 terms[k] = (terms[k] + v) / 2
         total = sum(terms.values())
         total.backward()
