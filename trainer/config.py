@@ -50,8 +50,8 @@ class DataConfig:
     transpose_visual: bool = True
     # Whether a mirrored crop is trained beside the crop as photographed, in the same step, instead of in its place
     # (`ours` and its ablations): a second generator pass on the mirrored twin trains the tactile side only, the
-    # tactile terms are the mean over both passes, and every step trains the visual branch. A mirrored step then
-    # costs about 1.6 times a plain one. Needs data.transpose or data.flip above 0.
+    # tactile terms are the mean over both passes, and every step trains the visual branch. A mirrored step costs a
+    # second generator pass (about twice the wall time at flip=0.5 here). Needs data.transpose or data.flip above 0.
     mirror_extra: bool = False
     # Whether that twin also trains the tactile GAN (its patches are shown to the tactile D, and its GAN and
     # feature-matching terms reach G). False keeps the adversarial texture on crops as photographed and lets the twin
