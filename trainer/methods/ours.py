@@ -152,10 +152,10 @@ class Ours(Method):
             out["t_tex"] = lc.tactile_texture * self.texture(tp, gt, batch.contact)
         if self.tactile_gan and gan:
             real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake))
-            gan = g_loss(fake_o)
+            adv = g_loss(fake_o)
             if unpaired_o is not None:
-                gan = (gan + g_loss(unpaired_o)) / 2
-            out["t_gan"] = self.tactile_gan_weight(step) * gan
+                adv = (adv + g_loss(unpaired_o)) / 2
+            out["t_gan"] = self.tactile_gan_weight(step) * adv
             if lc.feature_matching:
                 out["t_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
         return out
