@@ -15,6 +15,7 @@ import torch
 
 from trainer import eval_cache, provenance, verdict
 from trainer.bootstrap import paired_bootstrap
+from trainer.calibration import RULES
 from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference_predictions
 from trainer.references import REFERENCE_ROWS
@@ -244,13 +245,15 @@ def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed:
 
 @dataclass(frozen=True)
 class RunSpec:
-    """A run folder and which of its G weights are scored: `average` (the EMA, what is exported) or `raw`."""
+    """A run folder, which of its G weights are scored (`average`: the EMA, what is exported; `raw`; `probe`) and
+    the relief calibration applied to its tactile output (`none` or a trainer.calibration rule)."""
 
     path: Path
     weights: str = "average"
+    relief: str = "none"
 
     def __str__(self) -> str:
-        return str(self.path) if self.weights == "average" else f"{self.path}@{self.weights}"
+        return str(self.path) + "".join(f"@{t}" for t in (self.weights, self.relief) if t not in ("average", "none"))
 
 
 def _spec(r: Path | RunSpec) -> RunSpec:
@@ -263,7 +266,7 @@ def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "
     per_garment: dict[str, list[Prediction]] = defaultdict(list)
     names: dict[int, str] = {}
     for r in map(_spec, runs):
-        p = Prediction(r.path, which, unseen=False, weights=r.weights)
+        p = Prediction(r.path, which, unseen=False, weights=r.weights, relief=r.relief)
         per_garment[p.g.name].append(p)
         names[id(p)] = labels.get(r, _default_label(p.info["method"], r))
     paths = []
@@ -297,32 +300,43 @@ def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "
 
 
 def _default_label(method: str, spec: RunSpec) -> str:
-    return method if spec.weights == "average" else f"{method}-{spec.weights}"
+    return method + "".join(f"-{t}" for t in (spec.weights, spec.relief) if t not in ("average", "none"))
 
 
-def parse_run(arg: str) -> RunSpec:
-    """`RUN`, `RUN@raw` (score the run's raw G weights instead of their average) or `RUN@probe` (its probe average)."""
-    path, sep, weights = arg.rpartition("@")
-    if sep and weights in WEIGHTS and path:
-        return RunSpec(Path(path), weights)
-    if sep and "/" not in weights:
-        raise ValueError(f"{arg!r}: RUN@WEIGHTS takes one of {', '.join(WEIGHTS)} after the @")
-    return RunSpec(Path(arg))
+def parse_run(arg: str, relief: str = "none") -> RunSpec:
+    """`RUN`, then optional `@raw` / `@probe` (score the run's raw G weights, or its probe average, instead of their
+    average) and `@rms` (its relief calibrated on its training touches, trainer.calibration; else `relief`)."""
+    path, weights = arg, "average"
+    while True:
+        head, sep, tail = path.rpartition("@")
+        if not sep or "/" in tail:
+            break
+        if not head:
+            raise ValueError(f"{arg!r}: no run folder before the @")
+        if tail in WEIGHTS and weights == "average":
+            weights = tail
+        elif tail in RULES and tail != "none":
+            relief = tail
+        else:
+            raise ValueError(f"{arg!r}: RUN@X takes {', '.join(WEIGHTS)} (weights) or "
+                             f"{', '.join(r for r in RULES if r != 'none')} (relief) after an @, each at most once")
+        path = head
+    return RunSpec(Path(path), weights, relief)
 
 
-def parse_labelled(args: list[str]) -> tuple[list[RunSpec], dict[RunSpec, str]]:
+def parse_labelled(args: list[str], relief: str = "none") -> tuple[list[RunSpec], dict[RunSpec, str]]:
     """`[LABEL=]RUN[@raw]` arguments -> the runs and the labels given (a LABEL has no path separator). A run scored
     with its raw weights is named `<method>-raw` unless labelled."""
     runs, labels = [], {}
     for a in args:
         label, sep, path = a.partition("=")
         if sep and label and "/" not in label and path:
-            spec = parse_run(path)
+            spec = parse_run(path, relief)
             labels[spec] = label
         elif sep and "/" not in label:
             raise ValueError(f"--compare: {a!r}: a labelled run is LABEL=RUN with both parts")
         else:
-            spec = parse_run(a)
+            spec = parse_run(a, relief)
         if spec in runs:
             raise ValueError(f"--compare: {spec} is given twice")
         runs.append(spec)
@@ -357,7 +371,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        e = eval_cache.scored(r.path, which, r.weights, cache=cache)
+        e = eval_cache.scored(r.path, which, r.weights, cache=cache, relief=r.relief)
         e.result["run"] = str(r)
         name = labels.get(r, _default_label(e.result["method"], r))
         if name != e.result["method"]:
@@ -372,9 +386,11 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
 
 def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
     """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json; the raw
-    weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's."""
+    weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's; so do a
+    calibrated relief's (metrics-rms.json, "eval_rms")."""
     run_dir = Path(run_dir)
-    suffix = "" if result.get("weights", "average") == "average" else f"-{result['weights']}"
+    tags = (result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"))
+    suffix = "".join(f"-{t}" for t in tags if t not in ("average", "none"))
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
     (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
     (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])

@@ -75,11 +75,13 @@ def _code_hash(files: Iterable[Path] | None = None, base: Path = ROOT) -> str:
     return h.hexdigest()
 
 
-def cache_key(run_dir: Path, which: str, weights: str = "average") -> str:
+def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str = "none") -> str:
     run_dir = Path(run_dir)
     h = hashlib.sha256(f"v{VERSION} {which}".encode())
     if weights != "average":   # raw weights are scored apart from the average (stored as compare-<which>-raw)
         h.update(f" weights={weights}".encode())
+    if relief != "none":       # so is a calibrated relief (compare-<which>-<rule>)
+        h.update(f" relief={relief}".encode())
     ck_path = run_dir / "checkpoints" / f"{which}.pt"
     with open(ck_path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -95,8 +97,9 @@ def cache_key(run_dir: Path, which: str, weights: str = "average") -> str:
     return h.hexdigest()
 
 
-def _paths(run_dir: Path, which: str, weights: str = "average") -> tuple[Path, Path]:
-    base = Path(run_dir) / "eval" / (f"compare-{which}" if weights == "average" else f"compare-{which}-{weights}")
+def _paths(run_dir: Path, which: str, weights: str = "average", relief: str = "none") -> tuple[Path, Path]:
+    name = f"compare-{which}" + "".join(f"-{t}" for t in (weights, relief) if t not in ("average", "none"))
+    base = Path(run_dir) / "eval" / name
     return base.with_suffix(".json"), base.with_suffix(".npz")
 
 
@@ -112,8 +115,8 @@ def _unpack(arrays, prefix: str) -> dict[str, Units]:
             for m in metrics}
 
 
-def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average") -> None:
-    meta_path, arr_path = _paths(run_dir, which, weights)
+def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average", relief: str = "none") -> None:
+    meta_path, arr_path = _paths(run_dir, which, weights, relief)
     meta_path.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, np.ndarray] = {}
     _pack(arrays, "run", e.units)
@@ -123,9 +126,9 @@ def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "ave
     meta_path.write_text(json.dumps({"key": key, "result": e.result, "references": sorted(e.ref_units)}))
 
 
-def load(run_dir: Path, which: str, key: str, weights: str = "average") -> Evaluation | None:
+def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: str = "none") -> Evaluation | None:
     """The stored scores if their key is `key`; None (re-score) when missing, stale or unreadable."""
-    meta_path, arr_path = _paths(run_dir, which, weights)
+    meta_path, arr_path = _paths(run_dir, which, weights, relief)
     if not (meta_path.is_file() and arr_path.is_file()):
         return None
     try:
@@ -140,16 +143,17 @@ def load(run_dir: Path, which: str, key: str, weights: str = "average") -> Evalu
         return None
 
 
-def scored(run_dir: Path, which: str, weights: str = "average", *, cache: bool = True) -> Evaluation:
+def scored(run_dir: Path, which: str, weights: str = "average", *, cache: bool = True,
+           relief: str = "none") -> Evaluation:
     """The run's scores: stored ones while their key holds, else scored now (and stored unless `cache` is off).
     Scoring is called from here only, so the tables built from these scores (trainer.compare) can change wording
     without re-scoring every run."""
-    key = cache_key(run_dir, which, weights) if cache else None
-    e = load(run_dir, which, key, weights) if cache else None
+    key = cache_key(run_dir, which, weights, relief) if cache else None
+    e = load(run_dir, which, key, weights, relief) if cache else None
     if e is not None:
         log.info("eval: %s unchanged since it was scored; its stored scores are used", run_dir)
         return e
-    e = evaluate(run_dir, which, swap=False, weights=weights)
+    e = evaluate(run_dir, which, swap=False, weights=weights, relief=relief)
     if cache:
-        save(run_dir, which, key, e, weights)
+        save(run_dir, which, key, e, weights, relief)
     return e

@@ -25,6 +25,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                       help="one comparison from stored tables (compare.json of --compare), for runs whose weights "
                            "are gone: each run counts by its score, so intervals resample garments and seeds only")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
+    p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
+                   help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
+                        "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
+                        "gain; default none: as trained); with --compare, RUN@rms calibrates one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
@@ -66,13 +70,14 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
             spec = parse_run(args.run)
         except ValueError as exc:
             parser.error(str(exc))
-        result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights)
+        result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights,
+                              relief=spec.relief if spec.relief != "none" else args.relief)
         write_eval(spec.path, result, args.json)
         print(json.dumps(result, indent=2))
         return 0
     from trainer.compare import compare, parse_labelled
     try:
-        runs, labels = parse_labelled(args.compare)
+        runs, labels = parse_labelled(args.compare, args.relief)
     except ValueError as exc:
         parser.error(str(exc))
     md, data = compare(runs, args.out, args.which, ours=args.ours, n_boot=args.bootstrap, cache=not args.rescore,

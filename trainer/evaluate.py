@@ -23,11 +23,13 @@ import torch
 
 from trainer.augment import CropError, eval_crop_origin, object_bbox, resolve_crop
 from trainer.bootstrap import Units
+from trainer.calibration import CalibrationError, fit_relief_gain
 from trainer.checkpoint import CheckpointError, load_generator, read_checkpoint
 from trainer.config import config_from_dict
 from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.metrics import full_field_scores, visual_scores
+from trainer.models.relief_gain import ReliefGain
 from trainer.references import WEAVE_CUTOFF, object_colour, oracle, paint, weave_period_px, weave_split
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
@@ -301,7 +303,8 @@ def gap_closed(method: dict, flat: dict, oracle_row: dict) -> dict:
 class Prediction:
     """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
-    def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average"):
+    def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average",
+                 relief: str = "none"):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which, weights)
         ck = read_checkpoint(self.run, which)
@@ -312,6 +315,15 @@ class Prediction:
         g = load_garment(garment_dir)
         side = int(self.info["crop"])
         self.ctx = Context(g, side, eval_crop_origin(g.mask, side), float(self.info["friction_scale"]))
+        self.relief = None
+        if relief != "none":   # trainer/calibration.py: fitted on the training touches, applied to every output
+            try:
+                fit = fit_relief_gain(self.net, g, side, relief)
+            except CalibrationError as exc:
+                log.warning("eval: %s: %s", self.run, exc)
+                self.relief = {"rule": relief, "gain": None, "refused": str(exc)}
+            else:
+                self.net, self.relief = ReliefGain(self.net, fit.gain).eval(), fit.as_dict()
         if unseen:
             self.ctx.unseen = find_unseen(g, side)
         with torch.no_grad():
@@ -337,14 +349,16 @@ class Evaluation:
 
 
 def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True,
-             weights: str = "average") -> Evaluation:
-    p = Prediction(run_dir, which, unseen=unseen, weights=weights)
+             weights: str = "average", relief: str = "none") -> Evaluation:
+    p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief)
     ctx = p.ctx
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
                  "seed": p.seed, "checkpoint": which, "weights": weights,
                  "perceptual": (p.info.get("info") or {}).get("perceptual"), "machines": p.info.get("machines"),
                  "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
+    if p.relief is not None:
+        out["relief"] = p.relief
     metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)
     out.update(metrics)
     refs, ref_units = {}, {}
@@ -363,8 +377,9 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
     return Evaluation(out, units, ref_units)
 
 
-def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True, weights: str = "average") -> dict:
-    return evaluate(run_dir, which, swap=swap, weights=weights).result
+def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True, weights: str = "average",
+                 relief: str = "none") -> dict:
+    return evaluate(run_dir, which, swap=swap, weights=weights, relief=relief).result
 
 
 def swap_grid(p: Prediction) -> Path | None:

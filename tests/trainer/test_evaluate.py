@@ -359,7 +359,7 @@ def test_labelled_runs_parse():
     for bad in ("=runs/a", "label="):
         with pytest.raises(ValueError, match="LABEL=RUN"):
             parse_labelled([bad])
-    with pytest.raises(ValueError, match="one of average, raw"):
+    with pytest.raises(ValueError, match="takes average, raw, probe \(weights\) or rms"):
         parse_labelled(["runs/a@ema"])
     with pytest.raises(ValueError, match="given twice"):
         parse_labelled(["runs/a", "x=runs/a"])

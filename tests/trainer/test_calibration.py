@@ -1,0 +1,161 @@
+"""Relief calibration (trainer/calibration.py): the fitted gain undoes a known shrink of the relief exactly, only the
+training touches are read, a flat or touch-less case is refused without a division by zero, and the wrapper scales
+the tactile output of every graph kind and nothing else."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from torch import nn
+
+from trainer.augment import eval_crop_origin
+from trainer.calibration import GAIN_RANGE, CalibrationError, fit_relief_gain, touch_pixels
+from trainer.compare import RunSpec, parse_labelled, parse_run
+from trainer.data.synthetic import generate_dataset
+from trainer.data.touchclothing import load_garment
+from trainer.eval_cache import _paths, cache_key
+from trainer.models.relief_gain import ReliefGain
+
+SIDE = 256
+
+
+@pytest.fixture(scope="module")
+def garment(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calib")
+    generate_dataset(root, garments=1, seed=0, frame=(192, 144), progress=False, profile="easy")
+    return load_garment(next(p for p in root.iterdir() if p.is_dir()))
+
+
+class FieldNet(nn.Module):
+    """A stand-in generator with a fixed output (the calibration reads outputs only): visual zeros, tactile `field`."""
+
+    def __init__(self, field: np.ndarray):
+        super().__init__()
+        self.field = torch.from_numpy(field.astype(np.float32))[None]
+
+    def forward(self, sketch, mask, kind="full"):
+        vis = torch.zeros(1, 3, *self.field.shape[-2:])
+        return {"full": (vis, self.field), "visual": vis, "tactile": self.field}[kind]
+
+
+def touch_field(g, split="train", scale=1.0, noise=0.0, seed=0):
+    """(2, S, S): the split's measured slopes pasted where its touches lie in the evaluation crop, times `scale`."""
+    f = np.zeros((2, SIDE, SIDE))
+    for yy, xx, gx, gy in touch_pixels(g, eval_crop_origin(g.mask, SIDE), SIDE, split):
+        f[0, yy, xx], f[1, yy, xx] = gx, gy
+    return f * scale + np.random.default_rng(seed).normal(0, noise, f.shape)
+
+
+def test_the_touches_in_the_crop_are_found(garment):
+    found = touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE)
+    assert found and sum(len(f[0]) for f in found) > 256
+    for yy, xx, gx, gy in found:
+        assert len(yy) == len(xx) == len(gx) == len(gy) and yy.min() >= 0 and xx.max() < SIDE
+
+
+@settings(max_examples=15, deadline=None)
+@given(shrink=st.floats(0.3, 3.0))
+def test_a_known_shrink_is_undone_exactly_by_both_rules(garment, shrink):
+    net = FieldNet(touch_field(garment, scale=shrink))
+    for rule in ("rms", "ls"):
+        fit = fit_relief_gain(net, garment, SIDE, rule)
+        # exact but for the few pixels where two touches overlap (the field holds one of their two readings)
+        assert fit.gain == pytest.approx(1.0 / shrink, rel=1e-3)
+        assert fit.rule == rule and fit.touches >= 1
+
+
+def test_misplaced_bumps_get_a_smaller_least_squares_gain(garment):
+    """Noise of the touches' own strength, uncorrelated with them: rms keeps the energy, ls discounts it."""
+    f = touch_field(garment)
+    rms = float(np.sqrt(np.mean(f[f != 0] ** 2)))
+    net = FieldNet(touch_field(garment, scale=0.5, noise=0.5 * rms, seed=3))
+    g_rms = fit_relief_gain(net, garment, SIDE, "rms").gain
+    g_ls = fit_relief_gain(net, garment, SIDE, "ls").gain
+    assert g_ls < g_rms and 1.0 < g_rms < 2.0
+
+
+def test_only_training_touches_are_read(garment):
+    """Two models that agree on the training touches' pixels and nowhere else (not on the held-out touches either)
+    get the same gain."""
+    base = touch_field(garment, scale=0.7)
+    seen = np.zeros((SIDE, SIDE), bool)
+    for yy, xx, _, _ in touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE, "train"):
+        seen[yy, xx] = True
+    other = np.where(seen, base, np.random.default_rng(5).normal(0, 3.0, base.shape))
+    assert np.abs(other - base).max() > 1.0
+    for rule in ("rms", "ls"):
+        assert fit_relief_gain(FieldNet(other), garment, SIDE, rule).gain == \
+            pytest.approx(fit_relief_gain(FieldNet(base), garment, SIDE, rule).gain, rel=1e-9)
+
+
+@pytest.mark.parametrize("rule", ["rms", "ls"])
+def test_a_flat_model_is_refused_without_dividing_by_zero(garment, rule):
+    with np.errstate(all="raise"):
+        with pytest.raises(CalibrationError, match="undefined"):
+            fit_relief_gain(FieldNet(np.zeros((2, SIDE, SIDE))), garment, SIDE, rule)
+
+
+def test_a_gain_beyond_the_range_is_refused(garment):
+    net = FieldNet(touch_field(garment, scale=1.0 / (GAIN_RANGE[1] * 1.5)))
+    with pytest.raises(CalibrationError, match="outside"):
+        fit_relief_gain(net, garment, SIDE, "rms")
+
+
+def test_anti_correlated_relief_gets_no_least_squares_gain(garment):
+    with pytest.raises(CalibrationError, match="outside"):
+        fit_relief_gain(FieldNet(touch_field(garment, scale=-1.0)), garment, SIDE, "ls")
+
+
+def test_no_touches_in_the_crop_is_refused(garment):
+    bare = type(garment).__new__(type(garment))
+    bare.__dict__.update(garment.__dict__)
+    bare.touches = {**garment.touches, "train": []}
+    with pytest.raises(CalibrationError, match="contact pixels"):
+        fit_relief_gain(FieldNet(touch_field(garment)), bare, SIDE, "rms")
+
+
+def test_unknown_rule_is_an_error(garment):
+    for rule in ("none", "max"):
+        with pytest.raises(ValueError, match="relief rule"):
+            fit_relief_gain(FieldNet(touch_field(garment)), garment, SIDE, rule)
+
+
+def test_the_wrapper_scales_the_tactile_output_of_every_kind_only():
+    field = np.random.default_rng(0).normal(size=(2, 8, 8))
+    net = ReliefGain(FieldNet(field), 1.5)
+    vis, tac = net(None, None)
+    assert torch.equal(vis, torch.zeros_like(vis))
+    assert torch.allclose(tac, torch.from_numpy(field.astype(np.float32))[None] * 1.5)
+    assert torch.allclose(net(None, None, "tactile"), tac)
+    assert torch.equal(net(None, None, "visual"), vis)
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="positive finite"):
+            ReliefGain(FieldNet(field), bad)
+
+
+def test_run_arguments_name_the_relief():
+    assert parse_run("runs/a@rms") == RunSpec(Path_("runs/a"), "average", "rms")
+    assert parse_run("runs/a@raw@ls") == parse_run("runs/a@ls@raw") == RunSpec(Path_("runs/a"), "raw", "ls")
+    assert parse_run("runs/a", relief="rms") == RunSpec(Path_("runs/a"), "average", "rms")
+    assert parse_run("runs/a@ls", relief="rms").relief == "ls"   # a run's own suffix wins over the flag's
+    assert str(RunSpec(Path_("runs/a"), "raw", "rms")) == "runs/a@raw@rms"
+    for bad in ("runs/a@raw@raw", "runs/a@rms@rms@raw@raw", "@rms", "runs/a@none", "runs/a@big"):
+        with pytest.raises(ValueError):
+            parse_run(bad)
+    runs, labels = parse_labelled(["x=runs/a@rms", "runs/a"], relief="none")
+    assert runs == [RunSpec(Path_("runs/a"), relief="rms"), RunSpec(Path_("runs/a"))]
+    assert labels == {RunSpec(Path_("runs/a"), relief="rms"): "x"}
+
+
+def test_calibrated_scores_are_stored_apart(tmp_path):
+    names = {_paths(tmp_path, "latest", w, r)[0].name for w in ("average", "raw") for r in ("none", "rms", "ls")}
+    assert len(names) == 6 and "compare-latest.json" in names and "compare-latest-raw-rms.json" in names
+
+
+def Path_(s):
+    from pathlib import Path
+    return Path(s)
