@@ -321,6 +321,21 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert [(r["method"], r["weights"]) for r in raw["runs"]] == [("ours", "average"), ("ours-raw", "raw")]
     assert raw["runs"][1]["full_angle_deg"] == pytest.approx(raw["runs"][0]["full_angle_deg"])
     assert (runs[0] / "eval" / "compare-best-raw.json").is_file()
+    # RUN@rms: the relief calibrated on the training touches (trainer/calibration.py), in rows and files of its own
+    assert vtkiosk(["eval", "--compare", str(runs[0]), f"{runs[0]}@rms", "--out", str(cmp_dir / "rms"),
+                    "--bootstrap", "200"]) == 0
+    cal = json.loads((cmp_dir / "rms" / "compare.json").read_text())
+    assert [r["method"] for r in cal["runs"]] == ["ours", "ours-rms"] and "relief" not in cal["runs"][0]
+    fit = cal["runs"][1]["relief"]
+    assert fit["rule"] == "rms" and 0.25 <= fit["gain"] <= 4.0 and fit["pixels"] >= 256
+    plain, scaled = cal["runs"][0], cal["runs"][1]
+    assert scaled["full_fbsifid_seen"] != pytest.approx(plain["full_fbsifid_seen"])
+    assert scaled["visual_psnr"] == pytest.approx(plain["visual_psnr"])   # the visual output is untouched
+    assert (runs[0] / "eval" / "compare-best-rms.json").is_file()
+    assert vtkiosk(["eval", "--run", str(runs[0]), "--relief", "rms", "--no-swap"]) == 0
+    merged = json.loads((runs[0] / "metrics.json").read_text())
+    assert merged["eval_rms"]["relief"]["gain"] == pytest.approx(fit["gain"]) and "eval" not in merged
+    assert (runs[0] / "eval" / "metrics-rms.json").is_file() and not (runs[0] / "eval" / "metrics.json").exists()
     import trainer.eval_cache as cache_mod
 
     def refuse(*a, **k):
