@@ -68,6 +68,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--model-version", default=None,
                    help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
+    p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
+                   help="multiply the tactile output by one gain fitted on the garment's training touches "
+                        "(trainer/calibration.py; rms matches their relief's energy); default none: as trained")
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
     p.add_argument("--runs-root", type=Path, default=None,
@@ -90,7 +93,7 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
                        max_friction_mae_garment=args.max_friction_mae_garment,
                        force=args.force, model_version=args.model_version, display_name=args.display_name,
                        normalization=args.normalization, runs_root=args.runs_root,
-                       share_weights=not args.embed_weights)
+                       share_weights=not args.embed_weights, relief=args.relief)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
     log_path = args.log or Path(str(args.out) + ".log")

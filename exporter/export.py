@@ -57,6 +57,7 @@ class ExportConfig:
     seed: int = 0
     runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
     share_weights: bool = True     # graphs keep their tensors in one shared weights file (manifest schema 2)
+    relief: str = "none"           # "rms"/"ls": the tactile output's gain fitted on the training touches
 
 
 @dataclass
@@ -177,6 +178,22 @@ def _recipe(cfg: ExportConfig) -> dict[str, str]:
     return out
 
 
+def _calibrated(generator, garment_dir: Path, side: int, rule: str):
+    """The generator with its relief gain (trainer/calibration.py) as part of every graph, and the provenance line
+    that says so. A garment that cannot calibrate it is an error: the operator asked for a calibrated bundle."""
+    from trainer.calibration import RULES, CalibrationError, fit_relief_gain
+    from trainer.data.touchclothing import load_garment
+    from trainer.models.relief_gain import ReliefGain
+
+    if rule not in RULES:
+        raise ExportError(f"relief must be one of {', '.join(RULES)}; got {rule!r}")
+    try:
+        fit = fit_relief_gain(generator, load_garment(garment_dir), side, rule)
+    except CalibrationError as exc:
+        raise ExportError(f"cannot calibrate the relief: {exc}. Export without --relief") from None
+    return ReliefGain(generator, fit.gain).eval(), f"{rule} x{fit.gain:.4f} from {fit.touches} training touches"
+
+
 def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None, progress=print) -> ExportReport:
     """Export, measure, refuse or write. Raises ExportError/CheckpointError with an operator-facing message."""
     from trainer.checkpoint import load_generator
@@ -203,6 +220,10 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     if cfg.normalization not in NORMALIZATIONS:
         raise ExportError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {cfg.normalization!r}")
     pitch, constants = _physical(garment_dir, info, cfg.normalization)
+    relief = None
+    if cfg.relief != "none":
+        generator, relief = _calibrated(generator, garment_dir, int(info["crop"]), cfg.relief)
+        progress(f"export: relief calibrated ({relief})")
     with tempfile.TemporaryDirectory(prefix="vtkiosk-export-") as tmp_s:
         tmp = Path(tmp_s)
         assets = _reference_assets(garment_dir, tmp / "assets")
@@ -283,6 +304,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             branches=branches,
             provenance={"host": socket.gethostname(), "python": platform.python_version(),
                         "checkpoint": ck_path.name, **_recipe(cfg), **sharing,
+                        **({"relief": relief} if relief else {}),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )
         progress("export: writing" + (" and signing" if signing_key is not None else "") + " the bundle")

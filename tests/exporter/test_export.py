@@ -131,3 +131,47 @@ def test_cli_int8_export_prints_progress_only(run_dir, tmp_path):
     assert all(line.startswith(("export: ", "wrote ")) for line in lines), lines
     assert any("graph int8 vs fp32" in line for line in lines) and lines[-1].startswith("wrote ")
     assert (tmp_path / "q.vtb.log").is_file()
+
+
+def test_relief_calibrated_bundle_scales_the_tactile_output_only(run_dir, tmp_path):
+    """--relief rms: the gain fitted on the training touches is one Mul in every graph (the tactile output is the
+    uncalibrated bundle's times it, the visual untouched) and the manifest says so."""
+    from trainer.calibration import fit_relief_gain
+    from trainer.checkpoint import load_generator
+    from trainer.config import read_run_config
+    from trainer.data.touchclothing import load_garment
+
+    gen, info = load_generator(run_dir)
+    gain = fit_relief_gain(gen, load_garment(read_run_config(run_dir).garment), int(info["crop"]), "rms").gain
+    outs = {}
+    for relief in ("none", "rms"):
+        cfg = ExportConfig(precision="fp32", sizes=[(256, 256)], calibration_per_size=2, error_per_size=2,
+                           relief=relief)
+        export_run(run_dir, tmp_path / f"{relief}.vtb", cfg, progress=lambda *_: None)
+        b = open_bundle(tmp_path / f"{relief}.vtb", None, workdir=tmp_path / relief, allow_unsigned=True)
+        assert ("relief" in b.manifest.provenance) == (relief != "none")
+        s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+        s[40:200, 40], s[40:200, 210], s[40, 40:211], s[200, 40:211] = 0, 0, 0, 0
+        x = network_input(s, object_mask(s))
+        outs[relief] = ort_session(b.graph_path("full")).run(["visual", "tactile"], {"sketch": x.sketch,
+                                                                                     "mask": x.mask})
+        if relief == "rms":
+            assert b.manifest.provenance["relief"].startswith(f"rms x{gain:.4f} from ")
+    assert np.abs(outs["rms"][0] - outs["none"][0]).max() < 1e-6
+    assert np.abs(outs["rms"][1] - gain * outs["none"][1]).max() < 1e-5 and np.abs(outs["none"][1]).max() > 0
+    with pytest.raises(ExportError, match="relief must be one of"):
+        export_run(run_dir, tmp_path / "x.vtb", ExportConfig(precision="fp32", sizes=[(256, 256)], relief="max"),
+                   progress=lambda *_: None)
+    assert not (tmp_path / "x.vtb").exists()
+
+
+def test_relief_that_cannot_be_fitted_is_an_export_error(run_dir, tmp_path, monkeypatch):
+    import trainer.calibration as calibration
+
+    def refuse(*_a, **_k):
+        raise calibration.CalibrationError("DenimShorts: rms relief gain undefined is outside [0.25, 4.0]")
+    monkeypatch.setattr(calibration, "fit_relief_gain", refuse)
+    with pytest.raises(ExportError, match="cannot calibrate the relief: .*Export without --relief"):
+        export_run(run_dir, tmp_path / "y.vtb", ExportConfig(precision="fp32", sizes=[(256, 256)], relief="rms"),
+                   progress=lambda *_: None)
+    assert not (tmp_path / "y.vtb").exists()
