@@ -253,7 +253,7 @@ class RunSpec:
     relief: str = "none"
 
     def __str__(self) -> str:
-        return str(self.path) + "".join(f"@{t}" for t in (self.weights, self.relief) if t not in ("average", "none"))
+        return str(self.path) + "".join(f"@{t}" for t in eval_cache.variant(self.weights, self.relief))
 
 
 def _spec(r: Path | RunSpec) -> RunSpec:
@@ -300,13 +300,13 @@ def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "
 
 
 def _default_label(method: str, spec: RunSpec) -> str:
-    return method + "".join(f"-{t}" for t in (spec.weights, spec.relief) if t not in ("average", "none"))
+    return method + "".join(f"-{t}" for t in eval_cache.variant(spec.weights, spec.relief))
 
 
 def parse_run(arg: str, relief: str = "none") -> RunSpec:
     """`RUN`, then optional `@raw` / `@probe` (score the run's raw G weights, or its probe average, instead of their
     average) and `@rms` (its relief calibrated on its training touches, trainer.calibration; else `relief`)."""
-    path, weights = arg, "average"
+    path, weights, own_relief = arg, "average", None
     while True:
         head, sep, tail = path.rpartition("@")
         if not sep or "/" in tail:
@@ -315,18 +315,19 @@ def parse_run(arg: str, relief: str = "none") -> RunSpec:
             raise ValueError(f"{arg!r}: no run folder before the @")
         if tail in WEIGHTS and weights == "average":
             weights = tail
-        elif tail in RULES and tail != "none":
-            relief = tail
+        elif tail in RULES and tail != "none" and own_relief is None:
+            own_relief = tail
         else:
             raise ValueError(f"{arg!r}: RUN@X takes {', '.join(WEIGHTS)} (weights) or "
                              f"{', '.join(r for r in RULES if r != 'none')} (relief) after an @, each at most once")
         path = head
-    return RunSpec(Path(path), weights, relief)
+    return RunSpec(Path(path), weights, own_relief or relief)
 
 
 def parse_labelled(args: list[str], relief: str = "none") -> tuple[list[RunSpec], dict[RunSpec, str]]:
-    """`[LABEL=]RUN[@raw]` arguments -> the runs and the labels given (a LABEL has no path separator). A run scored
-    with its raw weights is named `<method>-raw` unless labelled."""
+    """`[LABEL=]RUN[@raw][@ls]` arguments -> the runs and the labels given (a LABEL has no path separator). A run
+    scored with its raw weights is named `<method>-raw` unless labelled (with a calibrated relief, `<method>-ls`);
+    `relief` is the rule of runs that name none."""
     runs, labels = [], {}
     for a in args:
         label, sep, path = a.partition("=")
@@ -389,8 +390,8 @@ def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> Non
     weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's; so do a
     calibrated relief's (metrics-rms.json, "eval_rms")."""
     run_dir = Path(run_dir)
-    tags = (result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"))
-    suffix = "".join(f"-{t}" for t in tags if t not in ("average", "none"))
+    tags = eval_cache.variant(result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"))
+    suffix = "".join(f"-{t}" for t in tags)
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
     (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
     (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])

@@ -97,8 +97,13 @@ def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str =
     return h.hexdigest()
 
 
+def variant(weights: str = "average", relief: str = "none") -> list[str]:
+    """What sets a scoring apart from the plain one (the EMA, as trained), in the order names and files carry it."""
+    return [t for t, plain in ((weights, "average"), (relief, "none")) if t != plain]
+
+
 def _paths(run_dir: Path, which: str, weights: str = "average", relief: str = "none") -> tuple[Path, Path]:
-    name = f"compare-{which}" + "".join(f"-{t}" for t in (weights, relief) if t not in ("average", "none"))
+    name = f"compare-{which}" + "".join(f"-{t}" for t in variant(weights, relief))
     base = Path(run_dir) / "eval" / name
     return base.with_suffix(".json"), base.with_suffix(".npz")
 

@@ -67,11 +67,11 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         from trainer.compare import parse_run, write_eval
         from trainer.evaluate import evaluate_run
         try:
-            spec = parse_run(args.run)
+            spec = parse_run(args.run, args.relief)
         except ValueError as exc:
             parser.error(str(exc))
         result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights,
-                              relief=spec.relief if spec.relief != "none" else args.relief)
+                              relief=spec.relief)
         write_eval(spec.path, result, args.json)
         print(json.dumps(result, indent=2))
         return 0

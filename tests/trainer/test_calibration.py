@@ -143,7 +143,7 @@ def test_run_arguments_name_the_relief():
     assert parse_run("runs/a", relief="rms") == RunSpec(Path_("runs/a"), "average", "rms")
     assert parse_run("runs/a@ls", relief="rms").relief == "ls"   # a run's own suffix wins over the flag's
     assert str(RunSpec(Path_("runs/a"), "raw", "rms")) == "runs/a@raw@rms"
-    for bad in ("runs/a@raw@raw", "runs/a@rms@rms@raw@raw", "@rms", "runs/a@none", "runs/a@big"):
+    for bad in ("runs/a@raw@raw", "runs/a@rms@rms", "runs/a@ls@rms", "@rms", "runs/a@none", "runs/a@big"):
         with pytest.raises(ValueError):
             parse_run(bad)
     runs, labels = parse_labelled(["x=runs/a@rms", "runs/a"], relief="none")
@@ -159,3 +159,13 @@ def test_calibrated_scores_are_stored_apart(tmp_path):
 def Path_(s):
     from pathlib import Path
     return Path(s)
+
+
+def test_both_command_lines_offer_exactly_the_rules():
+    """The CLIs keep torch out of --help, so they spell the rules out; this holds them to trainer.calibration's."""
+    from exporter.cli import build_parser as export_parser
+    from trainer.calibration import RULES
+    from trainer.eval_cli import build_parser as eval_parser
+    for parser in (eval_parser("eval"), export_parser("export")):
+        action = next(a for a in parser._actions if "--relief" in a.option_strings)
+        assert tuple(action.choices) == RULES and action.default == "none"
