@@ -71,6 +71,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
                    help="multiply the tactile output by one gain fitted on the garment's training touches "
                         "(trainer/calibration.py; rms matches their relief's energy); default none: as trained")
+    p.add_argument("--mirrors", choices=("none", "flip", "transpose", "flip+transpose"), default="none",
+                   help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
+                        "generator passes: the tactile latency grows with them; trainer/models/mirror_average.py), "
+                        "before any --relief gain; default none")
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
     p.add_argument("--runs-root", type=Path, default=None,
@@ -93,7 +97,8 @@ def main(argv: list[str], prog: str = "vtkiosk export") -> int:
                        max_friction_mae_garment=args.max_friction_mae_garment,
                        force=args.force, model_version=args.model_version, display_name=args.display_name,
                        normalization=args.normalization, runs_root=args.runs_root,
-                       share_weights=not args.embed_weights, relief=args.relief)
+                       share_weights=not args.embed_weights, relief=args.relief,
+                       mirrors=args.mirrors)
     if args.int8_fp32 is not None:
         cfg.fp32_islands = args.int8_fp32
     log_path = args.log or Path(str(args.out) + ".log")

@@ -58,6 +58,7 @@ class ExportConfig:
     runs_root: Path | None = None   # source_run is recorded relative to this (default: the working directory)
     share_weights: bool = True     # graphs keep their tensors in one shared weights file (manifest schema 2)
     relief: str = "none"           # "rms"/"ls": the tactile output's gain fitted on the training touches
+    mirrors: str = "none"          # the tactile output averaged over mirrored views (before the relief gain)
 
 
 @dataclass
@@ -220,6 +221,12 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
     if cfg.normalization not in NORMALIZATIONS:
         raise ExportError(f"normalization must be one of {', '.join(NORMALIZATIONS)}; got {cfg.normalization!r}")
     pitch, constants = _physical(garment_dir, info, cfg.normalization)
+    if cfg.mirrors != "none":
+        from trainer.models.mirror_average import MODES, MirrorAverage
+        if cfg.mirrors not in MODES:
+            raise ExportError(f"mirrors must be one of {', '.join(MODES)}; got {cfg.mirrors!r}")
+        generator = MirrorAverage(generator, cfg.mirrors).eval()
+        progress(f"export: relief averaged over mirrored views ({cfg.mirrors})")
     relief = None
     if cfg.relief != "none":
         generator, relief = _calibrated(generator, garment_dir, int(info["crop"]), cfg.relief)
@@ -304,6 +311,7 @@ def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None,
             branches=branches,
             provenance={"host": socket.gethostname(), "python": platform.python_version(),
                         "checkpoint": ck_path.name, **_recipe(cfg), **sharing,
+                        **({"mirrors": cfg.mirrors} if cfg.mirrors != "none" else {}),
                         **({"relief": relief} if relief else {}),
                         "sizes": ",".join(f"{w}x{h}" for w, h in cfg.sizes)},
         )

@@ -18,6 +18,7 @@ from trainer.bootstrap import paired_bootstrap
 from trainer.calibration import RULES
 from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference_predictions
+from trainer.models.mirror_average import MODES as MIRROR_MODES
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 
@@ -246,14 +247,20 @@ def differences(evals: list[Evaluation], ours: str, *, n_boot: int = 2000, seed:
 @dataclass(frozen=True)
 class RunSpec:
     """A run folder, which of its G weights are scored (`average`: the EMA, what is exported; `raw`; `probe`) and
-    the relief calibration applied to its tactile output (`none` or a trainer.calibration rule)."""
+    the relief calibration applied to its tactile output (`none` or a trainer.calibration rule), after the tactile
+    output is averaged over mirrored views (`none` or a trainer.models.mirror_average mode)."""
 
     path: Path
     weights: str = "average"
     relief: str = "none"
+    mirrors: str = "none"
+
+    @property
+    def tags(self) -> list[str]:
+        return eval_cache.variant(self.weights, self.relief, self.mirrors)
 
     def __str__(self) -> str:
-        return str(self.path) + "".join(f"@{t}" for t in eval_cache.variant(self.weights, self.relief))
+        return str(self.path) + "".join(f"@{t}" for t in self.tags)
 
 
 def _spec(r: Path | RunSpec) -> RunSpec:
@@ -266,7 +273,7 @@ def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "
     per_garment: dict[str, list[Prediction]] = defaultdict(list)
     names: dict[int, str] = {}
     for r in map(_spec, runs):
-        p = Prediction(r.path, which, unseen=False, weights=r.weights, relief=r.relief)
+        p = Prediction(r.path, which, unseen=False, weights=r.weights, relief=r.relief, mirrors=r.mirrors)
         per_garment[p.g.name].append(p)
         names[id(p)] = labels.get(r, _default_label(p.info["method"], r))
     paths = []
@@ -300,13 +307,14 @@ def qualitative_sheets(runs: list[Path | RunSpec], out_dir: Path, which: str = "
 
 
 def _default_label(method: str, spec: RunSpec) -> str:
-    return method + "".join(f"-{t}" for t in eval_cache.variant(spec.weights, spec.relief))
+    return method + "".join(f"-{t}" for t in spec.tags)
 
 
-def parse_run(arg: str, relief: str = "none") -> RunSpec:
+def parse_run(arg: str, relief: str = "none", mirrors: str = "none") -> RunSpec:
     """`RUN`, then optional `@raw` / `@probe` (score the run's raw G weights, or its probe average, instead of their
-    average) and `@rms` (its relief calibrated on its training touches, trainer.calibration; else `relief`)."""
-    path, weights, own_relief = arg, "average", None
+    average), `@rms` (its relief calibrated on its training touches, trainer.calibration; else `relief`) and `@flip`
+    (its relief averaged over mirrored views, trainer.models.mirror_average; else `mirrors`)."""
+    path, weights, own_relief, own_mirrors = arg, "average", None, None
     while True:
         head, sep, tail = path.rpartition("@")
         if not sep or "/" in tail:
@@ -317,27 +325,32 @@ def parse_run(arg: str, relief: str = "none") -> RunSpec:
             weights = tail
         elif tail in RULES and tail != "none" and own_relief is None:
             own_relief = tail
+        elif tail in MIRROR_MODES and tail != "none" and own_mirrors is None:
+            own_mirrors = tail
         else:
-            raise ValueError(f"{arg!r}: RUN@X takes {', '.join(WEIGHTS)} (weights) or "
-                             f"{', '.join(r for r in RULES if r != 'none')} (relief) after an @, each at most once")
+            raise ValueError(f"{arg!r}: RUN@X takes {', '.join(WEIGHTS)} (weights), "
+                             f"{', '.join(r for r in RULES if r != 'none')} (relief) or "
+                             f"{', '.join(m for m in MIRROR_MODES if m != 'none')} (mirrors) after an @, "
+                             "each at most once")
         path = head
-    return RunSpec(Path(path), weights, own_relief or relief)
+    return RunSpec(Path(path), weights, own_relief or relief, own_mirrors or mirrors)
 
 
-def parse_labelled(args: list[str], relief: str = "none") -> tuple[list[RunSpec], dict[RunSpec, str]]:
-    """`[LABEL=]RUN[@raw][@ls]` arguments -> the runs and the labels given (a LABEL has no path separator). A run
-    scored with its raw weights is named `<method>-raw` unless labelled (with a calibrated relief, `<method>-ls`);
-    `relief` is the rule of runs that name none."""
+def parse_labelled(args: list[str], relief: str = "none",
+                   mirrors: str = "none") -> tuple[list[RunSpec], dict[RunSpec, str]]:
+    """`[LABEL=]RUN[@raw][@flip][@ls]` arguments -> the runs and the labels given (a LABEL has no path separator). A
+    run scored with its raw weights is named `<method>-raw` unless labelled (with a calibrated relief,
+    `<method>-ls`; mirrored, `<method>-flip`); `relief` and `mirrors` are the settings of runs that name none."""
     runs, labels = [], {}
     for a in args:
         label, sep, path = a.partition("=")
         if sep and label and "/" not in label and path:
-            spec = parse_run(path, relief)
+            spec = parse_run(path, relief, mirrors)
             labels[spec] = label
         elif sep and "/" not in label:
             raise ValueError(f"--compare: {a!r}: a labelled run is LABEL=RUN with both parts")
         else:
-            spec = parse_run(a, relief)
+            spec = parse_run(a, relief, mirrors)
         if spec in runs:
             raise ValueError(f"--compare: {spec} is given twice")
         runs.append(spec)
@@ -372,7 +385,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        e = eval_cache.scored(r.path, which, r.weights, cache=cache, relief=r.relief)
+        e = eval_cache.scored(r.path, which, r.weights, cache=cache, relief=r.relief, mirrors=r.mirrors)
         e.result["run"] = str(r)
         name = labels.get(r, _default_label(e.result["method"], r))
         if name != e.result["method"]:
@@ -390,7 +403,8 @@ def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> Non
     weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's; so do a
     calibrated relief's (metrics-rms.json, "eval_rms")."""
     run_dir = Path(run_dir)
-    tags = eval_cache.variant(result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"))
+    tags = eval_cache.variant(result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"),
+                              result.get("mirrors", "none"))
     suffix = "".join(f"-{t}" for t in tags)
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
     (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))

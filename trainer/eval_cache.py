@@ -75,13 +75,16 @@ def _code_hash(files: Iterable[Path] | None = None, base: Path = ROOT) -> str:
     return h.hexdigest()
 
 
-def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str = "none") -> str:
+def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str = "none",
+              mirrors: str = "none") -> str:
     run_dir = Path(run_dir)
     h = hashlib.sha256(f"v{VERSION} {which}".encode())
     if weights != "average":   # raw weights are scored apart from the average (stored as compare-<which>-raw)
         h.update(f" weights={weights}".encode())
     if relief != "none":       # so is a calibrated relief (compare-<which>-<rule>)
         h.update(f" relief={relief}".encode())
+    if mirrors != "none":      # and a mirror-averaged one (compare-<which>-<mode>)
+        h.update(f" mirrors={mirrors}".encode())
     ck_path = run_dir / "checkpoints" / f"{which}.pt"
     with open(ck_path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -97,13 +100,15 @@ def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str =
     return h.hexdigest()
 
 
-def variant(weights: str = "average", relief: str = "none") -> list[str]:
-    """What sets a scoring apart from the plain one (the EMA, as trained), in the order names and files carry it."""
-    return [t for t, plain in ((weights, "average"), (relief, "none")) if t != plain]
+def variant(weights: str = "average", relief: str = "none", mirrors: str = "none") -> list[str]:
+    """What sets a scoring apart from the plain one (the EMA, as trained), in the order names and files carry it
+    (the mirrors before the relief gain, which is fitted on what they return)."""
+    return [t for t, plain in ((weights, "average"), (mirrors, "none"), (relief, "none")) if t != plain]
 
 
-def _paths(run_dir: Path, which: str, weights: str = "average", relief: str = "none") -> tuple[Path, Path]:
-    name = f"compare-{which}" + "".join(f"-{t}" for t in variant(weights, relief))
+def _paths(run_dir: Path, which: str, weights: str = "average", relief: str = "none",
+           mirrors: str = "none") -> tuple[Path, Path]:
+    name = f"compare-{which}" + "".join(f"-{t}" for t in variant(weights, relief, mirrors))
     base = Path(run_dir) / "eval" / name
     return base.with_suffix(".json"), base.with_suffix(".npz")
 
@@ -120,8 +125,9 @@ def _unpack(arrays, prefix: str) -> dict[str, Units]:
             for m in metrics}
 
 
-def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average", relief: str = "none") -> None:
-    meta_path, arr_path = _paths(run_dir, which, weights, relief)
+def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average", relief: str = "none",
+         mirrors: str = "none") -> None:
+    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors)
     meta_path.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, np.ndarray] = {}
     _pack(arrays, "run", e.units)
@@ -131,9 +137,10 @@ def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "ave
     meta_path.write_text(json.dumps({"key": key, "result": e.result, "references": sorted(e.ref_units)}))
 
 
-def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: str = "none") -> Evaluation | None:
+def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: str = "none",
+         mirrors: str = "none") -> Evaluation | None:
     """The stored scores if their key is `key`; None (re-score) when missing, stale or unreadable."""
-    meta_path, arr_path = _paths(run_dir, which, weights, relief)
+    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors)
     if not (meta_path.is_file() and arr_path.is_file()):
         return None
     try:
@@ -149,16 +156,16 @@ def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: 
 
 
 def scored(run_dir: Path, which: str, weights: str = "average", *, cache: bool = True,
-           relief: str = "none") -> Evaluation:
+           relief: str = "none", mirrors: str = "none") -> Evaluation:
     """The run's scores: stored ones while their key holds, else scored now (and stored unless `cache` is off).
     Scoring is called from here only, so the tables built from these scores (trainer.compare) can change wording
     without re-scoring every run."""
-    key = cache_key(run_dir, which, weights, relief) if cache else None
-    e = load(run_dir, which, key, weights, relief) if cache else None
+    key = cache_key(run_dir, which, weights, relief, mirrors) if cache else None
+    e = load(run_dir, which, key, weights, relief, mirrors) if cache else None
     if e is not None:
         log.info("eval: %s unchanged since it was scored; its stored scores are used", run_dir)
         return e
-    e = evaluate(run_dir, which, swap=False, weights=weights, relief=relief)
+    e = evaluate(run_dir, which, swap=False, weights=weights, relief=relief, mirrors=mirrors)
     if cache:
-        save(run_dir, which, key, e, weights, relief)
+        save(run_dir, which, key, e, weights, relief, mirrors)
     return e

@@ -29,6 +29,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
                         "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
                         "gain; default none: as trained); with --compare, RUN@rms calibrates one run only")
+    p.add_argument("--mirrors", choices=("none", "flip", "transpose", "flip+transpose"), default="none",
+                   help="average each run's tactile output over mirrored views of its sketch (left to right, across "
+                        "the diagonal, or both: 2, 2 or 4 passes; trainer/models/mirror_average.py), before any "
+                        "--relief gain; default none; with --compare, RUN@flip mirrors one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
@@ -67,17 +71,17 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         from trainer.compare import parse_run, write_eval
         from trainer.evaluate import evaluate_run
         try:
-            spec = parse_run(args.run, args.relief)
+            spec = parse_run(args.run, args.relief, args.mirrors)
         except ValueError as exc:
             parser.error(str(exc))
         result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights,
-                              relief=spec.relief)
+                              relief=spec.relief, mirrors=spec.mirrors)
         write_eval(spec.path, result, args.json)
         print(json.dumps(result, indent=2))
         return 0
     from trainer.compare import compare, parse_labelled
     try:
-        runs, labels = parse_labelled(args.compare, args.relief)
+        runs, labels = parse_labelled(args.compare, args.relief, args.mirrors)
     except ValueError as exc:
         parser.error(str(exc))
     md, data = compare(runs, args.out, args.which, ours=args.ours, n_boot=args.bootstrap, cache=not args.rescore,

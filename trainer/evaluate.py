@@ -29,6 +29,7 @@ from trainer.config import config_from_dict
 from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.metrics import full_field_scores, visual_scores
+from trainer.models.mirror_average import MirrorAverage
 from trainer.models.relief_gain import ReliefGain
 from trainer.references import WEAVE_CUTOFF, object_colour, oracle, paint, weave_period_px, weave_split
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
@@ -304,9 +305,12 @@ class Prediction:
     """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
     def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average",
-                 relief: str = "none"):
+                 relief: str = "none", mirrors: str = "none"):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which, weights)
+        self.mirrors = mirrors
+        if mirrors != "none":  # trainer/models/mirror_average.py: before the calibration, which fits what it returns
+            self.net = MirrorAverage(self.net, mirrors).eval()
         ck = read_checkpoint(self.run, which)
         self.cfg = config_from_dict(ck["config"])
         garment_dir = Path(self.cfg.garment)
@@ -349,14 +353,16 @@ class Evaluation:
 
 
 def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True,
-             weights: str = "average", relief: str = "none") -> Evaluation:
-    p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief)
+             weights: str = "average", relief: str = "none", mirrors: str = "none") -> Evaluation:
+    p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief, mirrors=mirrors)
     ctx = p.ctx
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
                  "seed": p.seed, "checkpoint": which, "weights": weights,
                  "perceptual": (p.info.get("info") or {}).get("perceptual"), "machines": p.info.get("machines"),
                  "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
+    if mirrors != "none":
+        out["mirrors"] = mirrors
     if p.relief is not None:
         out["relief"] = p.relief
     metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)
@@ -378,8 +384,8 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
 
 
 def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True, weights: str = "average",
-                 relief: str = "none") -> dict:
-    return evaluate(run_dir, which, swap=swap, weights=weights, relief=relief).result
+                 relief: str = "none", mirrors: str = "none") -> dict:
+    return evaluate(run_dir, which, swap=swap, weights=weights, relief=relief, mirrors=mirrors).result
 
 
 def swap_grid(p: Prediction) -> Path | None:

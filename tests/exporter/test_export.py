@@ -1,6 +1,7 @@
 """`vtkiosk export` on a real (briefly trained) run: parity, precisions, the error-bound refusal, verify."""
 import numpy as np
 import pytest
+import torch
 
 from exporter.export import ExportConfig, ExportError, export_run
 from exporter.graphs import export_graph, ort_session, torch_outputs
@@ -163,6 +164,36 @@ def test_relief_calibrated_bundle_scales_the_tactile_output_only(run_dir, tmp_pa
         export_run(run_dir, tmp_path / "x.vtb", ExportConfig(precision="fp32", sizes=[(256, 256)], relief="max"),
                    progress=lambda *_: None)
     assert not (tmp_path / "x.vtb").exists()
+
+
+def test_mirrored_bundle_averages_the_relief_inside_the_graph(run_dir, tmp_path):
+    """--mirrors: every view runs inside the graph (ONNX Transpose / flip), so ONNX Runtime returns what the wrapper
+    returns in torch; the visual output is the plain bundle's, and the manifest says which views."""
+    from trainer.checkpoint import load_generator
+    from trainer.models.mirror_average import MirrorAverage
+
+    s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+    s[40:200, 40], s[40:120, 210], s[40, 40:211], s[200, 40:150] = 0, 0, 0, 0   # no symmetry to hide an error
+    x = network_input(s, object_mask(s))
+    outs = {}
+    for mode in ("none", "flip+transpose"):
+        cfg = ExportConfig(precision="fp32", sizes=[(256, 256)], calibration_per_size=2, error_per_size=2,
+                           mirrors=mode)
+        export_run(run_dir, tmp_path / f"{mode}.vtb", cfg, progress=lambda *_: None)
+        b = open_bundle(tmp_path / f"{mode}.vtb", None, workdir=tmp_path / mode, allow_unsigned=True)
+        assert b.manifest.provenance.get("mirrors", "none") == mode
+        outs[mode] = ort_session(b.graph_path("full")).run(["visual", "tactile"], {"sketch": x.sketch,
+                                                                                   "mask": x.mask})
+    gen, _ = load_generator(run_dir)
+    with torch.no_grad():
+        _, want = MirrorAverage(gen.eval(), "flip+transpose")(torch.from_numpy(x.sketch), torch.from_numpy(x.mask))
+    assert np.abs(outs["flip+transpose"][1] - want.numpy()).max() < 1e-4
+    assert np.abs(outs["flip+transpose"][0] - outs["none"][0]).max() < 1e-6
+    assert np.abs(outs["flip+transpose"][1] - outs["none"][1]).max() > 1e-3   # the views do differ
+    with pytest.raises(ExportError, match="mirrors must be one of"):
+        export_run(run_dir, tmp_path / "m.vtb", ExportConfig(precision="fp32", sizes=[(256, 256)], mirrors="spin"),
+                   progress=lambda *_: None)
+    assert not (tmp_path / "m.vtb").exists()
 
 
 def test_relief_that_cannot_be_fitted_is_an_export_error(run_dir, tmp_path, monkeypatch):

@@ -332,6 +332,15 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert scaled["full_fbsifid_seen"] != pytest.approx(plain["full_fbsifid_seen"])
     assert scaled["visual_psnr"] == pytest.approx(plain["visual_psnr"])   # the visual output is untouched
     assert (runs[0] / "eval" / "compare-best-rms.json").is_file()
+    # RUN@flip@ls: the relief averaged over mirrored views, then calibrated (trainer/models/mirror_average.py)
+    assert vtkiosk(["eval", "--compare", str(runs[0]), f"{runs[0]}@flip@ls", "--out", str(cmp_dir / "flip"),
+                    "--bootstrap", "200"]) == 0
+    mir = json.loads((cmp_dir / "flip" / "compare.json").read_text())
+    assert [r["method"] for r in mir["runs"]] == ["ours", "ours-flip-ls"] and "mirrors" not in mir["runs"][0]
+    assert mir["runs"][1]["mirrors"] == "flip" and mir["runs"][1]["relief"]["rule"] == "ls"
+    assert mir["runs"][1]["full_angle_deg"] != pytest.approx(mir["runs"][0]["full_angle_deg"])
+    assert mir["runs"][1]["visual_psnr"] == pytest.approx(mir["runs"][0]["visual_psnr"])
+    assert (runs[0] / "eval" / "compare-best-flip-ls.json").is_file()
     assert vtkiosk(["eval", "--run", str(runs[0]), "--relief", "rms", "--no-swap"]) == 0
     merged = json.loads((runs[0] / "metrics.json").read_text())
     assert merged["eval_rms"]["relief"]["gain"] == pytest.approx(fit["gain"]) and "eval" not in merged
@@ -374,7 +383,7 @@ def test_labelled_runs_parse():
     for bad in ("=runs/a", "label="):
         with pytest.raises(ValueError, match="LABEL=RUN"):
             parse_labelled([bad])
-    with pytest.raises(ValueError, match="takes average, raw, probe \(weights\) or rms"):
+    with pytest.raises(ValueError, match="takes average, raw, probe \(weights\), rms"):
         parse_labelled(["runs/a@ema"])
     with pytest.raises(ValueError, match="given twice"):
         parse_labelled(["runs/a", "x=runs/a"])

@@ -1,0 +1,142 @@
+"""Test-time mirroring (trainer/models/mirror_average.py): each view's relief mirrored back with its slope vector,
+the visual output untouched, RUN@flip parsed and stored apart."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from torch import nn
+from torch.nn import functional as F
+
+from trainer.compare import RunSpec, parse_labelled, parse_run
+from trainer.eval_cache import _paths
+from trainer.models.mirror_average import MODES, MirrorAverage, view_back, view_in
+
+MIRRORED = [m for m in MODES if m != "none"]
+
+
+class SlopeNet(nn.Module):
+    """The relief of a height field equal to the sketch: central differences with zero padding, which mirror
+    exactly as slopes do. Any correct averaging returns it unchanged."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls = 0
+
+    def forward(self, sketch, mask, kind="full"):
+        self.calls += 1
+        p = F.pad(sketch, (1, 1, 1, 1))
+        gx = (p[..., 1:-1, 2:] - p[..., 1:-1, :-2]) / 2
+        gy = (p[..., 2:, 1:-1] - p[..., :-2, 1:-1]) / 2
+        vis = sketch.repeat(1, 3, 1, 1) * mask
+        tac = torch.cat([gx, gy], 1)
+        return {"full": (vis, tac), "tactile": tac, "visual": vis}[kind]
+
+
+class AnyNet(nn.Module):
+    """A generator with no symmetry at all (a random convolution and a constant slope)."""
+
+    def __init__(self):
+        super().__init__()
+        torch.manual_seed(0)
+        self.conv = nn.Conv2d(2, 5, 3, padding=1)
+
+    def forward(self, sketch, mask, kind="full"):
+        h = self.conv(torch.cat([sketch, mask], 1))
+        vis, tac = torch.tanh(h[:, :3]), torch.tanh(h[:, 3:]) + torch.tensor([0.3, -0.2]).view(1, 2, 1, 1)
+        return {"full": (vis, tac), "tactile": tac, "visual": vis}[kind]
+
+
+def inputs(h: int, w: int, seed: int):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(1, 1, h, w, generator=g), (torch.rand(1, 1, h, w, generator=g) > 0.2).float()
+
+
+@settings(max_examples=25, deadline=None)
+@given(h=st.integers(3, 12), w=st.integers(3, 12), seed=st.integers(0, 2**16), mode=st.sampled_from(MIRRORED))
+def test_a_relief_that_mirrors_as_slopes_do_is_returned_unchanged(h, w, seed, mode):
+    s, m = inputs(h, w, seed)   # non-square crops too: a transposed view is w x h
+    net = SlopeNet()
+    vis, tac = MirrorAverage(net, mode)(s, m)
+    ref_vis, ref_tac = net(s, m)
+    assert torch.allclose(tac, ref_tac, atol=1e-6) and torch.equal(vis, ref_vis)
+
+
+@settings(max_examples=25, deadline=None)
+@given(h=st.integers(2, 10), w=st.integers(2, 10), seed=st.integers(0, 2**16))
+def test_each_view_is_undone_by_its_way_back(h, w, seed):
+    """The slopes of a mirrored sketch, mirrored back (image and vector), are the sketch's own slopes."""
+    s, _ = inputs(h, w, seed)
+    net = SlopeNet()
+    slopes = net(s, s, "tactile")
+    for view in ("f", "t", "tf"):
+        mirrored = view_in(s, view)
+        assert mirrored.shape[-2:] == ((w, h) if "t" in view else (h, w))
+        assert torch.allclose(view_back(net(mirrored, mirrored, "tactile"), view), slopes, atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["flip", "transpose"])
+def test_a_two_view_average_is_exactly_symmetric_for_any_generator(mode):
+    """{plain, mirror} is a group: the averaged model is mirror-equivariant whatever the generator learned."""
+    s, m = inputs(8, 8, 3)
+    net = MirrorAverage(AnyNet(), mode)
+    view = MODES[mode][0]
+    with torch.no_grad():
+        _, tac = net(s, m)
+        _, tac_m = net(view_in(s, view), view_in(m, view))
+        assert torch.allclose(view_back(tac_m, view), tac, atol=1e-6)
+        if mode == "flip":   # a constant x-slope is not left-right symmetric, so the average removes it
+            assert abs(float(tac[:, 0].mean()) - float(AnyNet()(s, m)[1][:, 0].mean())) > 0.05
+
+
+def test_only_the_relief_is_averaged_and_only_where_a_graph_has_one():
+    s, m = inputs(8, 6, 1)
+    base = AnyNet()
+    for mode in MIRRORED:
+        net = MirrorAverage(SlopeNet(), mode)
+        net(s, m, "visual")
+        assert net.generator.calls == 1   # a visual-only graph runs the generator once
+        net(s, m, "tactile")
+        assert net.generator.calls == 2 + len(MODES[mode])
+        wrapped = MirrorAverage(base, mode)
+        with torch.no_grad():
+            assert torch.equal(wrapped(s, m)[0], base(s, m)[0])
+            assert torch.allclose(wrapped(s, m, "tactile"), wrapped(s, m)[1])
+            assert torch.isfinite(wrapped(s, m)[1]).all()
+    for bad in ("none", "rotate", ""):
+        with pytest.raises(ValueError, match="mirror mode"):
+            MirrorAverage(base, bad)
+
+
+def test_run_arguments_name_the_mirrors():
+    assert parse_run("runs/a@flip") == RunSpec(Path("runs/a"), mirrors="flip")
+    assert parse_run("runs/a@flip+transpose@ls") == parse_run("runs/a@ls@flip+transpose") \
+        == RunSpec(Path("runs/a"), relief="ls", mirrors="flip+transpose")
+    assert parse_run("runs/a", mirrors="transpose").mirrors == "transpose"
+    assert parse_run("runs/a@flip", mirrors="transpose").mirrors == "flip"   # a run's own suffix wins
+    spec = RunSpec(Path("runs/a"), "raw", "ls", "flip")
+    assert str(spec) == "runs/a@raw@flip@ls" and parse_run(str(spec)) == spec
+    for bad in ("runs/a@flip@flip", "runs/a@flip@transpose", "runs/a@rotate", "@flip"):
+        with pytest.raises(ValueError):
+            parse_run(bad)
+    runs, labels = parse_labelled(["x=runs/a@flip", "runs/a"], mirrors="none")
+    assert runs == [RunSpec(Path("runs/a"), mirrors="flip"), RunSpec(Path("runs/a"))]
+    assert labels == {RunSpec(Path("runs/a"), mirrors="flip"): "x"}
+
+
+def test_mirrored_scores_are_stored_apart(tmp_path):
+    names = {_paths(tmp_path, "latest", "average", r, m)[0].name for r in ("none", "ls") for m in MODES}
+    assert len(names) == 2 * len(MODES) and "compare-latest-flip-ls.json" in names
+
+
+def test_the_command_line_offers_exactly_the_modes():
+    """The CLIs keep torch out of --help, so they spell the modes out; this holds them to MODES."""
+    from exporter.cli import build_parser as export_parser
+    from trainer.eval_cli import build_parser as eval_parser
+    for parser in (eval_parser("eval"), export_parser("export")):
+        action = next(a for a in parser._actions if "--mirrors" in a.option_strings)
+        assert tuple(action.choices) == tuple(MODES) and action.default == "none"
