@@ -134,6 +134,15 @@ def test_cli_int8_export_prints_progress_only(run_dir, tmp_path):
     assert (tmp_path / "q.vtb.log").is_file()
 
 
+def _exported_outputs(run_dir, tmp_path, name: str, x, **cfg):
+    """Export a 256 px fp32 bundle with `cfg` and run its full graph on network input `x` in ONNX Runtime."""
+    export_run(run_dir, tmp_path / f"{name}.vtb", ExportConfig(precision="fp32", sizes=[(256, 256)],
+                                                             calibration_per_size=2, error_per_size=2, **cfg),
+               progress=lambda *_: None)
+    b = open_bundle(tmp_path / f"{name}.vtb", None, workdir=tmp_path / name, allow_unsigned=True)
+    return b, ort_session(b.graph_path("full")).run(["visual", "tactile"], {"sketch": x.sketch, "mask": x.mask})
+
+
 def test_relief_calibrated_bundle_scales_the_tactile_output_only(run_dir, tmp_path):
     """--relief rms: the gain fitted on the training touches is one Mul in every graph (the tactile output is the
     uncalibrated bundle's times it, the visual untouched) and the manifest says so."""
@@ -144,18 +153,13 @@ def test_relief_calibrated_bundle_scales_the_tactile_output_only(run_dir, tmp_pa
 
     gen, info = load_generator(run_dir)
     gain = fit_relief_gain(gen, load_garment(read_run_config(run_dir).garment), int(info["crop"]), "rms").gain
+    s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+    s[40:200, 40], s[40:200, 210], s[40, 40:211], s[200, 40:211] = 0, 0, 0, 0
+    x = network_input(s, object_mask(s))
     outs = {}
     for relief in ("none", "rms"):
-        cfg = ExportConfig(precision="fp32", sizes=[(256, 256)], calibration_per_size=2, error_per_size=2,
-                           relief=relief)
-        export_run(run_dir, tmp_path / f"{relief}.vtb", cfg, progress=lambda *_: None)
-        b = open_bundle(tmp_path / f"{relief}.vtb", None, workdir=tmp_path / relief, allow_unsigned=True)
+        b, outs[relief] = _exported_outputs(run_dir, tmp_path, relief, x, relief=relief)
         assert ("relief" in b.manifest.provenance) == (relief != "none")
-        s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
-        s[40:200, 40], s[40:200, 210], s[40, 40:211], s[200, 40:211] = 0, 0, 0, 0
-        x = network_input(s, object_mask(s))
-        outs[relief] = ort_session(b.graph_path("full")).run(["visual", "tactile"], {"sketch": x.sketch,
-                                                                                     "mask": x.mask})
         if relief == "rms":
             assert b.manifest.provenance["relief"].startswith(f"rms x{gain:.4f} from ")
     assert np.abs(outs["rms"][0] - outs["none"][0]).max() < 1e-6
@@ -177,13 +181,8 @@ def test_mirrored_bundle_averages_the_relief_inside_the_graph(run_dir, tmp_path)
     x = network_input(s, object_mask(s))
     outs = {}
     for mode in ("none", "flip+transpose"):
-        cfg = ExportConfig(precision="fp32", sizes=[(256, 256)], calibration_per_size=2, error_per_size=2,
-                           mirrors=mode)
-        export_run(run_dir, tmp_path / f"{mode}.vtb", cfg, progress=lambda *_: None)
-        b = open_bundle(tmp_path / f"{mode}.vtb", None, workdir=tmp_path / mode, allow_unsigned=True)
+        b, outs[mode] = _exported_outputs(run_dir, tmp_path, mode, x, mirrors=mode)
         assert b.manifest.provenance.get("mirrors", "none") == mode
-        outs[mode] = ort_session(b.graph_path("full")).run(["visual", "tactile"], {"sketch": x.sketch,
-                                                                                   "mask": x.mask})
     gen, _ = load_generator(run_dir)
     with torch.no_grad():
         _, want = MirrorAverage(gen.eval(), "flip+transpose")(torch.from_numpy(x.sketch), torch.from_numpy(x.mask))
