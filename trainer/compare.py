@@ -401,7 +401,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
 def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> None:
     """eval/metrics.json, eval/summary.md (the run beside its reference rows), and the run's metrics.json; the raw
     weights' scores go beside them (metrics-raw.json, summary-raw.md, "eval_raw"), never over the average's; so do a
-    calibrated relief's (metrics-rms.json, "eval_rms")."""
+    calibrated relief's (metrics-rms.json, "eval_rms") and a mirrored one's (metrics-flip-ls.json, "eval_flip_ls")."""
     run_dir = Path(run_dir)
     tags = eval_cache.variant(result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"),
                               result.get("mirrors", "none"))
