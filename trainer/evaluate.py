@@ -308,7 +308,6 @@ class Prediction:
                  relief: str = "none", mirrors: str = "none"):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which, weights)
-        self.mirrors = mirrors
         if mirrors != "none":  # trainer/models/mirror_average.py: before the calibration, which fits what it returns
             self.net = MirrorAverage(self.net, mirrors).eval()
         ck = read_checkpoint(self.run, which)
