@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trainer import eval_cache, provenance, verdict
+from trainer import eval_cache, provenance, target_plot, verdict
 from trainer.bootstrap import paired_bootstrap
 from trainer.calibration import RULES
 from trainer.checkpoint import WEIGHTS
@@ -378,7 +378,7 @@ def report(evals: list[Evaluation], ours: str, *, n_boot: int = 2000,
 def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, ours: str = "ours",
             n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
-    write the tables and sheets to `out_dir`. `labels`: run -> the name its rows get instead of its method."""
+    write the tables, the target's picture (trainer.target_plot) and the sheets to `out_dir`. `labels`: run -> the name its rows get instead of its method."""
     labels = labels or {}
     runs = [_spec(r) for r in runs]
     out_dir = Path(out_dir)
@@ -394,6 +394,10 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     md, data = report(evals, ours, n_boot=n_boot)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
+    target = data.get("target")
+    drawn = target_plot.plot([e.result for e in evals], out_dir / "target.png",
+                             (target or {}).get("ours", ours), target)
+    data["target_plot"] = str(drawn) if drawn else None
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which, labels)]
     return md, data
 

@@ -63,7 +63,8 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         if args.json is not None:
             args.json.write_text(json.dumps(data, indent=2))
         print(md)
-        print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}")
+        plot = f"; target plot: {data['target_plot']}" if data.get("target_plot") else ""
+        print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}{plot}")
         return 0
     import torch
     torch.set_num_threads(min(torch.get_num_threads(), 4))
@@ -89,7 +90,8 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     if args.json is not None:
         args.json.write_text(json.dumps(data, indent=2))
     print(md)
-    print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}; sheets: {', '.join(data['sheets'])}")
+    plot = f"; target plot: {data['target_plot']}" if data.get("target_plot") else ""
+    print(f"table: {args.out / 'compare.md'}, {args.out / 'compare.json'}{plot}; sheets: {', '.join(data['sheets'])}")
     return 0
 
 

@@ -13,6 +13,7 @@ import json
 import math
 from pathlib import Path
 
+from trainer import target_plot
 from trainer.bootstrap import single_unit
 from trainer.compare import DIFF_METRICS, report
 from trainer.evaluate import Evaluation
@@ -76,7 +77,8 @@ def evaluation(r: dict) -> Evaluation:
 
 
 def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000) -> tuple[str, dict]:
-    """The table, intervals and target check of all runs in `paths`; writes compare.md and compare.json."""
+    """The table, intervals and target check of all runs in `paths`; writes compare.md, compare.json and the
+    target's picture (target.png: trainer.target_plot)."""
     evals = [evaluation(r) for r in load_runs(paths)]
     md, data = report(evals, ours, n_boot=n_boot, resampled=POOL_RESAMPLED)
     names = ", ".join(str(p) for p in paths)
@@ -87,4 +89,8 @@ def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
+    target = data.get("target")
+    drawn = target_plot.plot([e.result for e in evals], out_dir / "target.png", (target or {}).get("ours", ours),
+                             target)
+    data["target_plot"] = str(drawn) if drawn else None
     return md, data

@@ -312,6 +312,9 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert (cmp_dir / "sheet_DenimShorts.png").is_file() and (cmp_dir / "sheet_CorduroyTrousers.png").is_file()
     sheet = cv2.imread(str(cmp_dir / "sheet_DenimShorts.png"))
     assert sheet.shape[0] == 256 * 6   # sketch row, truth, flat + mean-colour, oracle, ours, pix2pix
+    assert "target_plot" not in data and "sheets" not in data   # no machine's paths in the committed JSON
+    plot = cv2.imread(str(cmp_dir / "target.png"))
+    assert plot is not None and plot.shape[1] > plot.shape[0]   # two garments side by side
     # scores are stored beside each run; a second compare reuses them while nothing changed
     assert (runs[0] / "eval" / "compare-best.json").is_file() and (runs[0] / "eval" / "compare-best.npz").is_file()
     # RUN@raw: the raw weights in rows of their own, stored apart (no EMA here, so they score as the average does)

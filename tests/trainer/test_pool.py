@@ -105,6 +105,7 @@ def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
     for g_new, g_old in zip(data["target"]["garments"], stored["target"]["garments"]):
         assert g_new["garment"] == g_old["garment"] and g_new["runs"] == g_old["runs"]
         assert g_new["gap_closed"] == pytest.approx(g_old["gap_closed"])
+    assert (tmp_path / "out" / "target.png").is_file() and data["target_plot"].endswith("target.png")
 
 
 def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(tmp_path):
