@@ -27,12 +27,8 @@ class PoolError(ValueError):
     """A stored table that cannot be pooled; the message names the file and what is wrong."""
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _scores(d: dict) -> dict[str, float]:
-    return {k: float(d[k]) for k in DIFF_METRICS if _finite(d.get(k))}
+    return {k: float(d[k]) for k in DIFF_METRICS if target_plot.is_score(d.get(k))}
 
 
 def load_runs(paths: list[Path]) -> list[dict]:

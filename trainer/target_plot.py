@@ -20,15 +20,17 @@ X, Y = TARGET_METRICS
 ANGLE_ONLY_REFERENCES = ("oracle", "shape-oracle", "texture-oracle")
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and math.isfinite(v)
+def is_score(v) -> bool:
+    """A stored score worth using: a finite number (a table's JSON keeps null for a figure a run has not got, and
+    a bool is no score)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def points(results: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:
     """garment -> method -> the (outside angle, FB-SIFID unseen) of each run that has both figures."""
     out: dict[str, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
     for r in results:
-        if _finite(r.get(X)) and _finite(r.get(Y)):
+        if is_score(r.get(X)) and is_score(r.get(Y)):
             out[r["garment"]][r["method"]].append((float(r[X]), float(r[Y])))
     return {g: dict(m) for g, m in out.items()}
 
@@ -39,8 +41,8 @@ def reference_points(results: list[dict]) -> dict[str, dict[str, tuple[float | N
     for r in results:
         if r["garment"] in out or not r.get("references"):
             continue
-        out[r["garment"]] = {name: tuple(float(ref[k]) if _finite(ref.get(k)) else None for k in (X, Y))
-                             for name, ref in r["references"].items() if _finite(ref.get(X)) or _finite(ref.get(Y))}
+        out[r["garment"]] = {name: tuple(float(ref[k]) if is_score(ref.get(k)) else None for k in (X, Y))
+                             for name, ref in r["references"].items() if is_score(ref.get(X)) or is_score(ref.get(Y))}
     return out
 
 

@@ -22,6 +22,7 @@ REFS = {"flat": {X: 16.9, Y: 0.25}, "oracle": {X: 5.5, Y: None}, "shape-oracle":
 def test_points_keep_runs_with_both_figures_only():
     results = [run("KnitJacket", "ours", 14.5, 0.05), run("KnitJacket", "ours", 14.9, 0.06),
                run("KnitJacket", "gaugan", float("nan"), 0.07), run("KnitJacket", "pix2pix", 19.0, None),
+               run("KnitJacket", "pix2pixhd", True, 0.08), run("KnitJacket", "ours-no-gan", 18.0, float("inf")),
                run("DenimShorts", "ours", 7.0, 0.006)]
     pts = target_plot.points(results)
     assert pts == {"KnitJacket": {"ours": [(14.5, 0.05), (14.9, 0.06)]}, "DenimShorts": {"ours": [(7.0, 0.006)]}}
