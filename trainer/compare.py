@@ -378,7 +378,8 @@ def report(evals: list[Evaluation], ours: str, *, n_boot: int = 2000,
 def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, ours: str = "ours",
             n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
-    write the tables, the target's picture (trainer.target_plot) and the sheets to `out_dir`. `labels`: run -> the name its rows get instead of its method."""
+    write the tables, the target's picture (trainer.target_plot) and the sheets to `out_dir`. `labels`: run -> the
+    name its rows get instead of its method."""
     labels = labels or {}
     runs = [_spec(r) for r in runs]
     out_dir = Path(out_dir)
@@ -394,9 +395,7 @@ def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, o
     md, data = report(evals, ours, n_boot=n_boot)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
-    target = data.get("target")
-    drawn = target_plot.plot([e.result for e in evals], out_dir / "target.png",
-                             (target or {}).get("ours", ours), target)
+    drawn = target_plot.beside_table([e.result for e in evals], data, out_dir, ours)
     data["target_plot"] = str(drawn) if drawn else None
     data["sheets"] = [str(p) for p in qualitative_sheets(runs, out_dir, which, labels)]
     return md, data

@@ -85,8 +85,6 @@ def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "compare.md").write_text(md)
     (out_dir / "compare.json").write_text(json.dumps(data, indent=2))
-    target = data.get("target")
-    drawn = target_plot.plot([e.result for e in evals], out_dir / "target.png", (target or {}).get("ours", ours),
-                             target)
+    drawn = target_plot.beside_table([e.result for e in evals], data, out_dir, ours)
     data["target_plot"] = str(drawn) if drawn else None
     return md, data

@@ -128,3 +128,10 @@ def plot(results: list[dict], out: Path, ours: str, target: dict | None = None) 
     fig.savefig(out, dpi=90)
     plt.close(fig)
     return out
+
+
+def beside_table(results: list[dict], data: dict, out_dir: Path, ours: str) -> Path | None:
+    """`target.png` beside a comparison table just written to `out_dir` (`data`: its JSON; the verdict in it names
+    the method the intervals were taken for, which may differ from the `ours` asked for)."""
+    target = data.get("target")
+    return plot(results, Path(out_dir) / "target.png", (target or {}).get("ours", ours), target)
