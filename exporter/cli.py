@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from exporter.quiet import chatter_to
+from trainer.models.mirror_modes import MODES as MIRROR_MODES
 
 
 def _sizes(text: str) -> list[tuple[int, int]]:
@@ -71,9 +72,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
                    help="multiply the tactile output by one gain fitted on the garment's training touches "
                         "(trainer/calibration.py; rms matches their relief's energy); default none: as trained")
-    p.add_argument("--mirrors", choices=("none", "flip", "transpose", "flip+transpose"), default="none",
+    p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
-                        "generator passes: the tactile latency grows with them; trainer/models/mirror_average.py), "
+                        "generator passes: the tactile latency grows with them; a -low mode averages only the coarse relief; "
+                        "trainer/models/mirror_average.py), "
                         "before any --relief gain; default none")
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")

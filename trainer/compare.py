@@ -18,7 +18,7 @@ from trainer.bootstrap import paired_bootstrap
 from trainer.calibration import RULES
 from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference_predictions
-from trainer.models.mirror_average import MODES as MIRROR_MODES
+from trainer.models.mirror_modes import MODES as MIRROR_MODES
 from trainer.references import REFERENCE_ROWS
 from trainer.sheets import grid, label, output_row, save_png, to_uint8
 

@@ -8,6 +8,8 @@ import logging
 import sys
 from pathlib import Path
 
+from trainer.models.mirror_modes import MODES as MIRROR_MODES
+
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description="Evaluate trained runs; compare methods.")
@@ -29,9 +31,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
                         "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
                         "gain; default none: as trained); with --compare, RUN@rms calibrates one run only")
-    p.add_argument("--mirrors", choices=("none", "flip", "transpose", "flip+transpose"), default="none",
+    p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "
-                        "the diagonal, or both: 2, 2 or 4 passes; trainer/models/mirror_average.py), before any "
+                        "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief and keeps the "
+                        "plain view's detail; trainer/models/mirror_average.py), before any "
                         "--relief gain; default none; with --compare, RUN@flip mirrors one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")

@@ -14,7 +14,8 @@ from torch.nn import functional as F
 
 from trainer.compare import RunSpec, parse_labelled, parse_run
 from trainer.eval_cache import _paths
-from trainer.models.mirror_average import MODES, MirrorAverage, view_back, view_in
+from trainer.models.mirror_average import MODES, MirrorAverage, gaussian_lowpass, view_back, view_in
+from trainer.models.mirror_modes import DETAIL_SIGMA_PX, LOW
 
 MIRRORED = [m for m in MODES if m != "none"]
 
@@ -93,6 +94,47 @@ def test_a_two_view_average_is_exactly_symmetric_for_any_generator(mode):
             assert abs(float(tac[:, 0].mean()) - float(AnyNet()(s, m)[1][:, 0].mean())) > 0.05
 
 
+class WeaveNet(SlopeNet):
+    """SlopeNet plus a fixed fine 'weave' drawn in the output's own frame (so each view draws it at another place)
+    and a constant slope (coarse, and not left-right symmetric)."""
+
+    def __init__(self, h: int, w: int):
+        super().__init__()
+        g = torch.Generator().manual_seed(7)
+        self.weave = {(h, w): torch.randn(1, 2, h, w, generator=g), (w, h): torch.randn(1, 2, w, h, generator=g)}
+
+    def forward(self, sketch, mask, kind="full"):
+        vis, tac = SlopeNet.forward(self, sketch, mask, "full")
+        tac = tac + 0.5 * self.weave[tuple(sketch.shape[-2:])] + torch.tensor([0.3, -0.2]).view(1, 2, 1, 1)
+        return {"full": (vis, tac), "tactile": tac, "visual": vis}[kind]
+
+
+@pytest.mark.parametrize("mode", [m for m in MIRRORED if not m.endswith(LOW)])
+def test_a_low_mode_keeps_the_detail_and_averages_the_coarse_relief(mode):
+    """The plain average cancels a weave the views draw at different places; the -low mode keeps the plain view's
+    weave and still removes what the views disagree on at coarse scale (here a constant slope)."""
+    s, m = inputs(64, 48, 5)
+    net = WeaveNet(64, 48)
+    with torch.no_grad():
+        plain = net(s, m, "tactile")
+        full = MirrorAverage(net, mode)(s, m, "tactile")
+        low = MirrorAverage(net, mode + LOW)(s, m, "tactile")
+    weave = 0.5 * net.weave[(64, 48)]
+    kept = lambda out: float(((out - gaussian_lowpass(out, DETAIL_SIGMA_PX)) * weave).mean() / (weave ** 2).mean())
+    assert kept(full) < 0.6 < 0.85 < kept(low)   # the share of the plain view's weave left in the output
+    coarse = lambda out: gaussian_lowpass(out, 3 * DETAIL_SIGMA_PX)[..., 20:44, 12:36].mean(dim=(-1, -2))
+    assert torch.allclose(coarse(low), coarse(full), atol=0.03)
+    assert not torch.allclose(coarse(plain), coarse(full), atol=0.1)
+
+
+def test_the_lowpass_keeps_a_constant_and_the_mean():
+    x = torch.full((1, 2, 9, 4), 0.7)
+    assert torch.allclose(gaussian_lowpass(x, DETAIL_SIGMA_PX), x)
+    y = torch.randn(1, 2, 40, 40, generator=torch.Generator().manual_seed(1))
+    assert abs(float(gaussian_lowpass(y, DETAIL_SIGMA_PX).mean() - y.mean())) < 0.02
+    assert float(gaussian_lowpass(y, DETAIL_SIGMA_PX).std()) < 0.2 * float(y.std())   # white noise mostly removed
+
+
 def test_only_the_relief_is_averaged_and_only_where_a_graph_has_one():
     s, m = inputs(8, 6, 1)
     base = AnyNet()
@@ -117,6 +159,8 @@ def test_run_arguments_name_the_mirrors():
     assert parse_run("runs/a@flip+transpose@ls") == parse_run("runs/a@ls@flip+transpose") \
         == RunSpec(Path("runs/a"), relief="ls", mirrors="flip+transpose")
     assert parse_run("runs/a", mirrors="transpose").mirrors == "transpose"
+    assert parse_run("runs/a@flip+transpose-low@ls") == RunSpec(Path("runs/a"), relief="ls",
+                                                                mirrors="flip+transpose-low")
     assert parse_run("runs/a@flip", mirrors="transpose").mirrors == "flip"   # a run's own suffix wins
     spec = RunSpec(Path("runs/a"), "raw", "ls", "flip")
     assert str(spec) == "runs/a@raw@flip@ls" and parse_run(str(spec)) == spec
