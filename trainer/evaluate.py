@@ -31,6 +31,7 @@ from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.metrics import full_field_scores, visual_scores
 from trainer.models.mirror_average import MirrorAverage
 from trainer.models.relief_gain import ReliefGain
+from trainer.physical import LINE_REACH_MM
 from trainer.references import WEAVE_CUTOFF, object_colour, oracle, paint, weave_period_px, weave_split
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
@@ -44,9 +45,6 @@ GAP_METRICS = ("tactile_mse", "tactile_angle_deg", "full_angle_deg", "full_angle
                "full_angle_deg_outside", "full_angle_deg_outside_lines", "full_angle_deg_outside_open",
                "full_friction_mae", "full_friction_mae_inside",
                "full_friction_mae_outside", "tactile_fbsifid_seen", "full_fbsifid_seen")
-# How far from a sketch stroke the relief it draws reaches: a seam's or an edge's ridge (Gaussian, 1-1.2 px at the
-# synthetic renderer's 0.3 mm pitch) plus a stroke's offset from it (the sketch is an edge map of the photo)
-LINE_REACH_MM = 1.2
 GAP_TIE = 1e-9   # |flat - oracle| at or below this (relative to |flat|) leaves no gap to close
 
 

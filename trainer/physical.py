@@ -14,6 +14,10 @@ from trainer.data.touchclothing import DatasetError, Garment
 
 # GelSight R1.5 sensing area 32 mm x 24 mm (H x W) resampled to 104 x 78 px to match the camera frame.
 TOUCHCLOTHING_PITCH_MM = 32.0 / 104.0
+# How far from a sketch stroke the relief it draws reaches: a seam's or an edge's ridge (Gaussian, 1-1.2 px at the
+# synthetic renderer's 0.3 mm pitch) plus a stroke's offset from it (the sketch is an edge map of the photo). The
+# evaluator's "by a line" region and test-time mirroring's `-lines` band are both this reach.
+LINE_REACH_MM = 1.2
 
 
 def dataset_pitch_mm(g: Garment) -> tuple[float, str]:

@@ -14,8 +14,11 @@ from torch.nn import functional as F
 
 from trainer.compare import RunSpec, parse_labelled, parse_run
 from trainer.eval_cache import _paths
-from trainer.models.mirror_average import MODES, MirrorAverage, gaussian_lowpass, view_back, view_in
-from trainer.models.mirror_modes import DETAIL_SIGMA_PX, LOW
+from trainer.evaluate import near_strokes
+from trainer.models.mirror_average import (MODES, MirrorAverage, disc_taps, gaussian_lowpass, stroke_band, view_back,
+                                           view_in)
+from trainer.models.mirror_modes import DETAIL_SIGMA_PX, GRID_PITCH_MM, LINES, LOW, VIEWS
+from trainer.physical import LINE_REACH_MM
 
 MIRRORED = [m for m in MODES if m != "none"]
 
@@ -109,7 +112,7 @@ class WeaveNet(SlopeNet):
         return {"full": (vis, tac), "tactile": tac, "visual": vis}[kind]
 
 
-@pytest.mark.parametrize("mode", [m for m in MIRRORED if not m.endswith(LOW)])
+@pytest.mark.parametrize("mode", [m for m in VIEWS if m != "none"])
 def test_a_low_mode_keeps_the_detail_and_averages_the_coarse_relief(mode):
     """The plain average cancels a weave the views draw at different places; the -low mode keeps the plain view's
     weave and still removes what the views disagree on at coarse scale (here a constant slope)."""
@@ -125,6 +128,50 @@ def test_a_low_mode_keeps_the_detail_and_averages_the_coarse_relief(mode):
     coarse = lambda out: gaussian_lowpass(out, 3 * DETAIL_SIGMA_PX)[..., 20:44, 12:36].mean(dim=(-1, -2))
     assert torch.allclose(coarse(low), coarse(full), atol=0.03)
     assert not torch.allclose(coarse(plain), coarse(full), atol=0.1)
+
+
+def stroked_sketch(h: int, w: int, seed: int) -> np.ndarray:
+    """uint8 paper (255) with a few dark strokes at random places and angles."""
+    import cv2
+    rng = np.random.default_rng(seed)
+    s = np.full((h, w), 255, np.uint8)
+    for _ in range(int(rng.integers(1, 5))):
+        p, q = rng.integers(0, (w, h), 2), rng.integers(0, (w, h), 2)
+        cv2.line(s, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), 0, int(rng.integers(1, 3)))
+    return s
+
+
+@settings(max_examples=20, deadline=None)
+@given(h=st.integers(8, 64), w=st.integers(8, 64), seed=st.integers(0, 2**16))
+def test_the_stroke_band_is_the_evaluators_by_a_line_region(h, w, seed):
+    """The -lines band (a disc dilation in the graph) and the evaluator's "by a line" pixels (a distance transform)
+    are the same reach from the same strokes; they may differ only where OpenCV's 5x5 distance is approximate."""
+    s = stroked_sketch(h, w, seed)
+    band = stroke_band(torch.from_numpy(s.astype(np.float32) / 127.5 - 1)[None, None],
+                       disc_taps(LINE_REACH_MM / GRID_PITCH_MM))[0, 0].numpy().astype(bool)
+    near = near_strokes(s, GRID_PITCH_MM)
+    assert (band == near).mean() > 0.99
+    assert band[s < 128].all() and not band[~near_strokes(s, GRID_PITCH_MM / 2)].any()   # nothing past twice the reach
+
+
+def test_a_lines_mode_averages_by_the_strokes_and_keeps_open_cloth():
+    s = stroked_sketch(64, 48, 11)
+    x = torch.from_numpy(s.astype(np.float32) / 127.5 - 1)[None, None]
+    m = torch.ones_like(x)
+    net = WeaveNet(64, 48)
+    band = torch.from_numpy(near_strokes(s, GRID_PITCH_MM))
+    with torch.no_grad():
+        plain = net(x, m, "tactile")
+        mean = MirrorAverage(net, "flip+transpose")(x, m, "tactile")
+        lines = MirrorAverage(net, "flip+transpose" + LINES)(x, m, "tactile")
+    assert 0.05 < float(band.float().mean()) < 0.8
+    agree = (stroke_band(x, disc_taps(LINE_REACH_MM / GRID_PITCH_MM))[0, 0] > 0) == band
+    inside, outside = band & agree, ~band & agree
+    assert torch.equal(lines[..., outside], plain[..., outside])   # open cloth: the plain view's weave, untouched
+    assert torch.allclose(lines[..., inside], mean[..., inside], atol=1e-6)
+    blank = torch.ones(1, 1, 64, 48)   # no strokes: nothing to average
+    with torch.no_grad():
+        assert torch.equal(MirrorAverage(net, "flip" + LINES)(blank, m, "tactile"), net(blank, m, "tactile"))
 
 
 def test_the_lowpass_keeps_a_constant_and_the_mean():

@@ -14,6 +14,11 @@ sits mostly at the scale of folds and seams. The cutoff is physical and set befo
 DETAIL_SIGMA_PX = 5 px (1.5 mm at the training grid's 0.3 mm/px), which keeps under 6 % of a 4 mm period (the widest
 weave of the catalogue, corduroy's wales) and over 85 % of a 20 mm fold.
 
+A `-lines` mode averages the views only within LINE_REACH_MM of the sketch's strokes (the evaluator's "by a line"
+band, a disc dilation of the strokes computed in the graph) and keeps the plain view's relief in open cloth. Why: on
+the full-schedule catalogue the views' average gains its angle by the strokes (seams, edges, folds drawn as lines),
+where one view's ridge is misplaced, and none in open cloth, where it only cancels the weave.
+
 It keeps the generator's forward(sketch, mask, kind) contract, so evaluation, the exporter's graphs and their
 parity check run through it; an exported graph runs the generator once per view (its latency grows with them).
 """
@@ -26,7 +31,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from kiosk.contract.graph import GRAPH_OUTPUTS
-from trainer.models.mirror_modes import DETAIL_SIGMA_PX, LOW, MODES
+from trainer.models.mirror_modes import DETAIL_SIGMA_PX, GRID_PITCH_MM, LINES, LOW, MODES
+from trainer.physical import LINE_REACH_MM
 
 
 def gaussian_taps(sigma: float, channels: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -45,6 +51,21 @@ def gaussian_lowpass(x: torch.Tensor, sigma: float | None = None,
     rx, ry = wx.shape[-1] // 2, wy.shape[-2] // 2
     x = F.conv2d(F.pad(x, (rx, rx, 0, 0), mode="replicate"), wx.to(x.dtype), groups=x.shape[1])
     return F.conv2d(F.pad(x, (0, 0, ry, ry), mode="replicate"), wy.to(x.dtype), groups=x.shape[1])
+
+
+def disc_taps(radius: float) -> torch.Tensor:
+    """(1, 1, k, k) weights: 1 within `radius` px of the centre, 0 outside."""
+    r = int(math.floor(radius))
+    d = torch.arange(-r, r + 1, dtype=torch.float32)
+    return ((d.view(-1, 1) ** 2 + d.view(1, -1) ** 2) <= radius ** 2).float().view(1, 1, 2 * r + 1, 2 * r + 1)
+
+
+def stroke_band(sketch: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) in {0, 1}: within the disc of a stroke (a sketch pixel darker than mid-grey; the sketch is in
+    [-1, 1], strokes dark on white paper)."""
+    strokes = (sketch < 0).to(sketch.dtype)
+    r = taps.shape[-1] // 2
+    return (F.conv2d(strokes, taps.to(sketch.dtype), padding=r) > 0.5).to(sketch.dtype)
 
 
 def _mirror_in(x: torch.Tensor, op: str) -> torch.Tensor:
@@ -77,10 +98,11 @@ class MirrorAverage(nn.Module):
         if mode not in MODES or mode == "none":
             raise ValueError(f"mirror mode must be one of {', '.join(m for m in MODES if m != 'none')}; got {mode!r}")
         self.generator, self.mode, self.views = generator, mode, MODES[mode]
-        self.low = mode.endswith(LOW)
+        self.low, self.lines = mode.endswith(LOW), mode.endswith(LINES)
         wx, wy = gaussian_taps(DETAIL_SIGMA_PX, 2)   # the relief's two slope channels
         self.register_buffer("taps_x", wx, persistent=False)
         self.register_buffer("taps_y", wy, persistent=False)
+        self.register_buffer("taps_disc", disc_taps(LINE_REACH_MM / GRID_PITCH_MM), persistent=False)
 
     def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
         out = self.generator(sketch, mask, kind)
@@ -93,5 +115,10 @@ class MirrorAverage(nn.Module):
                 o = self.generator(view_in(sketch, view), view_in(mask, view), kind)
                 total = total + view_back(o[i] if isinstance(o, tuple) else o, view)
             mean = total / (1 + len(self.views))
-            outs[i] = plain + gaussian_lowpass(mean - plain, taps=(self.taps_x, self.taps_y)) if self.low else mean
+            if self.low:
+                outs[i] = plain + gaussian_lowpass(mean - plain, taps=(self.taps_x, self.taps_y))
+            elif self.lines:
+                outs[i] = plain + stroke_band(sketch, self.taps_disc) * (mean - plain)
+            else:
+                outs[i] = mean
         return tuple(outs) if len(outs) > 1 else outs[0]
