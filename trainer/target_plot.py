@@ -82,7 +82,8 @@ def plot(results: list[dict], out: Path, ours: str, target: dict | None = None) 
     garments = sorted(pts)
     cols = math.ceil(math.sqrt(len(garments)))
     rows = math.ceil(len(garments) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.2 * rows), squeeze=False)
+    # at least 7.5 in wide: the two-line title does not fit one 4.6 in panel
+    fig, axes = plt.subplots(rows, cols, figsize=(max(4.6 * cols, 7.5), 4.2 * rows), squeeze=False)
     for ax, g in zip(axes.flat, garments):
         methods = pts[g]
         for m, p in methods.items():
