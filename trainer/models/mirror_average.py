@@ -16,8 +16,9 @@ weave of the catalogue, corduroy's wales) and over 85 % of a 20 mm fold.
 
 A `-lines` mode averages the views only within LINE_REACH_MM of the sketch's strokes (the evaluator's "by a line"
 band, a disc dilation of the strokes computed in the graph) and keeps the plain view's relief in open cloth. Why: on
-the full-schedule catalogue the views' average gains its angle by the strokes (seams, edges, folds drawn as lines),
-where one view's ridge is misplaced, and none in open cloth, where it only cancels the weave.
+the full-schedule catalogue most of the average's angle gain sits by the strokes (seams, edges, folds drawn as lines),
+where one view's ridge is misplaced; in open cloth it gains little, and on a weave the views disagree on (KnitJacket)
+it costs. What each mode measured: docs/training.md, "Which views where".
 
 It keeps the generator's forward(sketch, mask, kind) contract, so evaluation, the exporter's graphs and their
 parity check run through it; an exported graph runs the generator once per view (its latency grows with them).
