@@ -33,9 +33,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "gain; default none: as trained); with --compare, RUN@rms calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "
-                        "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief and keeps "
-                        "the plain view's detail; trainer/models/mirror_average.py), before any --relief gain; default "
-                        "none; with --compare, RUN@flip mirrors one run only")
+                        "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief, "
+                        "a -lines mode only by the sketch's strokes; trainer/models/mirror_average.py), before any "
+                        "--relief gain; default none; with --compare, RUN@flip mirrors one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")

@@ -15,9 +15,9 @@ from torch.nn import functional as F
 from trainer.compare import RunSpec, parse_labelled, parse_run
 from trainer.eval_cache import _paths
 from trainer.evaluate import near_strokes
-from trainer.models.mirror_average import (MODES, MirrorAverage, disc_taps, gaussian_lowpass, stroke_band, view_back,
-                                           view_in)
-from trainer.models.mirror_modes import DETAIL_SIGMA_PX, GRID_PITCH_MM, LINES, LOW, VIEWS
+from trainer.models.mirror_average import (DETAIL_SIGMA_PX, GRID_PITCH_MM, MODES, MirrorAverage, disc_taps,
+                                           gaussian_lowpass, stroke_band, view_back, view_in)
+from trainer.models.mirror_modes import LINES, LOW, VIEWS
 from trainer.physical import LINE_REACH_MM
 
 MIRRORED = [m for m in MODES if m != "none"]

@@ -7,5 +7,3 @@ VIEWS = {"none": (), "flip": ("f",), "transpose": ("t",), "flip+transpose": ("f"
 LOW = "-low"       # suffix: average the views' coarse relief only, keep the plain view's detail
 LINES = "-lines"   # suffix: average the views by the sketch's strokes only, keep the plain view's open cloth
 MODES = {**VIEWS, **{m + s: v for m, v in VIEWS.items() if m != "none" for s in (LOW, LINES)}}
-GRID_PITCH_MM = 0.3   # the training grid's pitch (synthetic garments; TouchClothing's 0.31): the px constants' scale
-DETAIL_SIGMA_PX = 1.5 / GRID_PITCH_MM   # 5 px; why in mirror_average.py
