@@ -7,12 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from torch import nn
 from torch.nn import functional as F
 
+from kiosk.contract.sketch import network_input, object_mask
 from trainer.compare import RunSpec, parse_labelled, parse_run
+from trainer.data.synthetic import generate_dataset
+from trainer.data.touchclothing import load_garment
 from trainer.eval_cache import _paths
 from trainer.evaluate import near_strokes
 from trainer.models.mirror_average import (DETAIL_SIGMA_PX, GRID_PITCH_MM, MODES, MirrorAverage, disc_taps,
@@ -172,6 +175,47 @@ def test_a_lines_mode_averages_by_the_strokes_and_keeps_open_cloth():
     blank = torch.ones(1, 1, 64, 48)   # no strokes: nothing to average
     with torch.no_grad():
         assert torch.equal(MirrorAverage(net, "flip" + LINES)(blank, m, "tactile"), net(blank, m, "tactile"))
+
+
+def silhouette_edge(mask: np.ndarray) -> np.ndarray:
+    """Mask pixels within the lines' reach of a pixel outside the mask."""
+    taps = disc_taps(LINE_REACH_MM / GRID_PITCH_MM)
+    out = torch.from_numpy((~mask).astype(np.float32))[None, None]
+    return (F.conv2d(out, taps, padding=taps.shape[-1] // 2)[0, 0] > 0.5).numpy() & mask
+
+
+def lines_band(sketch: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The -lines band as an exported graph computes it: from the graph's input, the sketch times the mask."""
+    x = network_input(sketch, mask).sketch
+    return stroke_band(torch.from_numpy(x), disc_taps(LINE_REACH_MM / GRID_PITCH_MM))[0, 0].numpy() > 0.5
+
+
+def test_the_band_holds_the_silhouettes_inner_edge_on_generated_garments(tmp_path):
+    """Part of the silhouette's ink lies outside the mask (the graph never sees it), but the outline is drawn on the
+    mask's own boundary pixels too, so the band still covers every mask pixel near the edge: adding the mask's edge
+    to the band (tried) changes no pixel."""
+    for path in generate_dataset(tmp_path, garments=6, seed=0, frame=(640, 480), progress=False):
+        g = load_garment(path, tactile=False)
+        m = g.mask.astype(bool)
+        assert ((g.sketch < 128) & ~m).any()   # the case in question: ink outside the mask
+        edge = silhouette_edge(m)
+        assert edge.any() and lines_band(g.sketch, m)[edge].all(), path.name
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**16), thickness=st.integers(1, 3))
+def test_the_band_holds_the_silhouettes_inner_edge_on_a_kiosk_mask(seed, thickness):
+    """The kiosk's mask is the region the closed outline encloses, its ink included: the same holds there."""
+    import cv2
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(8, 88, (8, 2)).astype(np.int32)
+    hull = cv2.convexHull(pts)
+    s = np.full((96, 96), 255, np.uint8)
+    cv2.polylines(s, [hull], True, 0, thickness)
+    m = object_mask(s)
+    assume(m.any())   # a degenerate hull (points on a line) encloses nothing
+    edge = silhouette_edge(m)
+    assert lines_band(s, m)[edge].all()
 
 
 def test_the_lowpass_keeps_a_constant_and_the_mean():
