@@ -75,7 +75,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
                         "generator passes: the tactile latency grows with them; a -low mode averages only the coarse "
-                        "relief, a -lines mode only by the sketch's strokes; trainer/models/mirror_average.py), "
+                        "relief, a -lines mode only by the sketch's strokes, an -energy mode gives the fine relief back "
+                        "its strength; trainer/models/mirror_average.py), "
                         "before any --relief gain; default none")
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")

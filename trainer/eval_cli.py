@@ -34,7 +34,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "
                         "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief, "
-                        "a -lines mode only by the sketch's strokes; trainer/models/mirror_average.py), before any "
+                        "a -lines mode only by the sketch's strokes, an -energy mode gives the fine relief back its "
+                        "strength; trainer/models/mirror_average.py), before any "
                         "--relief gain; default none; with --compare, RUN@flip mirrors one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")

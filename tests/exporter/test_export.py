@@ -181,15 +181,16 @@ def test_mirrored_bundle_averages_the_relief_inside_the_graph(run_dir, tmp_path)
     s[120, 150:211], s[120:201, 150] = 0, 0   # closed, so the mask holds open cloth away from the strokes
     x = network_input(s, object_mask(s))
     outs = {}
-    for mode in ("none", "flip+transpose", "flip+transpose-low", "flip+transpose-lines"):
+    for mode in ("none", "flip+transpose", "flip+transpose-low", "flip+transpose-lines", "flip+transpose-energy"):
         b, outs[mode] = _exported_outputs(run_dir, tmp_path, mode, x, mirrors=mode)
         assert b.manifest.provenance.get("mirrors", "none") == mode
     gen, _ = load_generator(run_dir)
-    for mode in ("flip+transpose", "flip+transpose-low", "flip+transpose-lines"):   # the blur and band in-graph
+    for mode in ("flip+transpose", "flip+transpose-low", "flip+transpose-lines",
+                 "flip+transpose-energy"):   # the blur, band and gain in-graph
         with torch.no_grad():
             _, want = MirrorAverage(gen.eval(), mode)(torch.from_numpy(x.sketch), torch.from_numpy(x.mask))
         assert np.abs(outs[mode][1] - want.numpy()).max() < 1e-4
-    for mode in ("flip+transpose-low", "flip+transpose-lines"):
+    for mode in ("flip+transpose-low", "flip+transpose-lines", "flip+transpose-energy"):
         assert np.abs(outs[mode][1] - outs["flip+transpose"][1]).max() > 1e-4
     assert np.abs(outs["flip+transpose"][0] - outs["none"][0]).max() < 1e-6
     assert np.abs(outs["flip+transpose"][1] - outs["none"][1]).max() > 1e-3   # the views do differ

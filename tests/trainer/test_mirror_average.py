@@ -18,9 +18,9 @@ from trainer.data.synthetic import generate_dataset
 from trainer.data.touchclothing import load_garment
 from trainer.eval_cache import _paths
 from trainer.evaluate import near_strokes
-from trainer.models.mirror_average import (DETAIL_SIGMA_PX, GRID_PITCH_MM, MODES, MirrorAverage, disc_taps,
-                                           gaussian_lowpass, stroke_band, view_back, view_in)
-from trainer.models.mirror_modes import LINES, LOW, VIEWS
+from trainer.models.mirror_average import (DETAIL_SIGMA_PX, GRID_PITCH_MM, MODES, MirrorAverage, detail_gain,
+                                           disc_taps, gaussian_lowpass, stroke_band, view_back, view_in)
+from trainer.models.mirror_modes import ENERGY, LINES, LOW, VIEWS
 from trainer.physical import LINE_REACH_MM
 
 MIRRORED = [m for m in MODES if m != "none"]
@@ -131,6 +131,37 @@ def test_a_low_mode_keeps_the_detail_and_averages_the_coarse_relief(mode):
     coarse = lambda out: gaussian_lowpass(out, 3 * DETAIL_SIGMA_PX)[..., 20:44, 12:36].mean(dim=(-1, -2))
     assert torch.allclose(coarse(low), coarse(full), atol=0.03)
     assert not torch.allclose(coarse(plain), coarse(full), atol=0.1)
+
+
+def test_an_energy_mode_keeps_the_means_coarse_relief_and_the_plain_views_fine_energy():
+    s, m = inputs(64, 48, 5)
+    m[..., :4, :] = 0   # a mask that is not the whole canvas: the energies are taken over it
+    net = WeaveNet(64, 48)
+    with torch.no_grad():
+        plain = net(s, m, "tactile")
+        mean = MirrorAverage(net, "flip+transpose")(s, m, "tactile")
+        out = MirrorAverage(net, "flip+transpose" + ENERGY)(s, m, "tactile")
+    fine = lambda x: x - gaussian_lowpass(x, DETAIL_SIGMA_PX)
+    energy = lambda x: float((m * x * x).sum())
+    added = out - gaussian_lowpass(mean, DETAIL_SIGMA_PX)   # what the mode puts on the mean's coarse relief
+    gain = float((added * fine(mean)).sum() / (fine(mean) ** 2).sum())
+    assert 1.2 < gain < 2 and torch.allclose(added, gain * fine(mean), atol=1e-5)   # the mean's pattern, one gain
+    assert energy(fine(mean)) < 0.6 * energy(fine(plain))   # the weave the views disagree on is averaged away
+    assert energy(added) == pytest.approx(energy(fine(plain)), rel=1e-4)   # and its strength given back
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**16), a=st.floats(0, 1e3), b=st.floats(0, 1e3), masked=st.floats(0, 1))
+def test_the_detail_gain_is_finite_and_bounded(seed, a, b, masked):
+    """Between 1 and the bound whatever the reliefs, 1 where both are blank or the mask is empty: nothing a canvas
+    holds makes it divide by zero."""
+    g = torch.Generator().manual_seed(seed)
+    p, q = a * torch.randn(2, 2, 9, 7, generator=g), b * torch.randn(2, 2, 9, 7, generator=g)
+    m = (torch.rand(2, 1, 9, 7, generator=g) >= masked).float()
+    k = detail_gain(p, q, m, 2.0)
+    assert k.shape == (2, 1, 1, 1) and torch.isfinite(k).all() and ((k >= 1) & (k <= 2)).all()
+    assert torch.equal(detail_gain(torch.zeros_like(p), torch.zeros_like(q), m, 2.0), torch.ones(2, 1, 1, 1))
+    assert torch.equal(detail_gain(p, q, torch.zeros_like(m), 2.0), torch.ones(2, 1, 1, 1))
 
 
 def stroked_sketch(h: int, w: int, seed: int) -> np.ndarray:

@@ -20,6 +20,12 @@ the full-schedule catalogue most of the average's angle gain sits by the strokes
 where one view's ridge is misplaced; in open cloth it gains little, and on a weave the views disagree on (KnitJacket)
 it costs. What each mode measured: docs/training.md, "Which views where".
 
+An `-energy` mode averages everything, then scales the mean's fine relief (above the same DETAIL_SIGMA_PX cutoff)
+back up to the energy the plain view's fine relief has over the mask, a gain between 1 and sqrt(views). Why: the
+texture statistic compares how strong the weave is, not where it sits; averaging views that draw it at different
+phases leaves the right places and the wrong strength, and one gain per canvas gives the strength back without
+taking any view's phase. No data is fitted (the gain is the plain view's own energy), so it runs in the graph.
+
 It keeps the generator's forward(sketch, mask, kind) contract, so evaluation, the exporter's graphs and their
 parity check run through it; an exported graph runs the generator once per view (its latency grows with them).
 """
@@ -33,11 +39,12 @@ from torch import nn
 
 from kiosk.contract.graph import GRAPH_OUTPUTS
 from trainer.data.synthetic import PITCH_MM as GRID_PITCH_MM
-from trainer.models.mirror_modes import LINES, LOW, MODES
+from trainer.models.mirror_modes import ENERGY, LINES, LOW, MODES
 from trainer.physical import LINE_REACH_MM
 
 # The px constants are set at the training grid's pitch (the synthetic garments' 0.3 mm; TouchClothing's is 0.31).
 DETAIL_SIGMA_PX = 1.5 / GRID_PITCH_MM   # 5 px; why in the module docstring
+ENERGY_EPS = 1e-6   # squared slope, summed over the mask: see detail_gain
 
 
 def gaussian_taps(sigma: float, channels: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -76,6 +83,16 @@ def stroke_band(sketch: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
     return (F.conv2d(strokes, taps.to(sketch.dtype), padding=r) > 0.5).to(sketch.dtype)
 
 
+def detail_gain(plain_fine: torch.Tensor, mean_fine: torch.Tensor, mask: torch.Tensor, most: float) -> torch.Tensor:
+    """(N, 1, 1, 1): the gain that gives the views' mean fine relief the plain view's energy over the mask, within
+    [1, most]. `most` is sqrt(views), what n views that share nothing lose; the eps (against slopes summed over
+    ~1e5 pixels, ~1e3) makes 0/0 a gain of 1, a blank relief stays blank."""
+    m = mask[:, :1]
+    e_plain = (m * plain_fine * plain_fine).sum(dim=(1, 2, 3), keepdim=True)
+    e_mean = (m * mean_fine * mean_fine).sum(dim=(1, 2, 3), keepdim=True)
+    return torch.sqrt((e_plain + ENERGY_EPS) / (e_mean + ENERGY_EPS)).clamp(1.0, most)
+
+
 def _mirror_in(x: torch.Tensor, op: str) -> torch.Tensor:
     return x.transpose(-1, -2) if op == "t" else torch.flip(x, dims=(-1,))
 
@@ -107,6 +124,7 @@ class MirrorAverage(nn.Module):
             raise ValueError(f"mirror mode must be one of {', '.join(m for m in MODES if m != 'none')}; got {mode!r}")
         self.generator, self.mode, self.views = generator, mode, MODES[mode]
         self.low, self.lines = mode.endswith(LOW), mode.endswith(LINES)
+        self.energy = mode.endswith(ENERGY)
         wx, wy = gaussian_taps(DETAIL_SIGMA_PX, 2)   # the relief's two slope channels
         self.register_buffer("taps_x", wx, persistent=False)
         self.register_buffer("taps_y", wy, persistent=False)
@@ -125,6 +143,12 @@ class MirrorAverage(nn.Module):
             mean = total / (1 + len(self.views))
             if self.low:
                 outs[i] = plain + gaussian_lowpass(mean - plain, taps=(self.taps_x, self.taps_y))
+            elif self.energy:
+                taps = (self.taps_x, self.taps_y)
+                coarse = gaussian_lowpass(mean, taps=taps)
+                fine = mean - coarse
+                outs[i] = coarse + detail_gain(plain - gaussian_lowpass(plain, taps=taps), fine, mask,
+                                               math.sqrt(1 + len(self.views))) * fine
             elif self.lines:
                 outs[i] = plain + stroke_band(sketch, self.taps_disc) * (mean - plain)
             else:

@@ -6,4 +6,5 @@ importing torch."""
 VIEWS = {"none": (), "flip": ("f",), "transpose": ("t",), "flip+transpose": ("f", "t", "tf")}
 LOW = "-low"       # suffix: average the views' coarse relief only, keep the plain view's detail
 LINES = "-lines"   # suffix: average the views by the sketch's strokes only, keep the plain view's open cloth
-MODES = {**VIEWS, **{m + s: v for m, v in VIEWS.items() if m != "none" for s in (LOW, LINES)}}
+ENERGY = "-energy"  # suffix: average all of it, then scale the fine relief back to the plain view's energy
+MODES = {**VIEWS, **{m + s: v for m, v in VIEWS.items() if m != "none" for s in (LOW, LINES, ENERGY)}}
