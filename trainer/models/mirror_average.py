@@ -85,8 +85,8 @@ def stroke_band(sketch: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
 
 def detail_gain(plain_fine: torch.Tensor, mean_fine: torch.Tensor, mask: torch.Tensor, most: float) -> torch.Tensor:
     """(N, 1, 1, 1): the gain that gives the views' mean fine relief the plain view's energy over the mask, within
-    [1, most]. `most` is sqrt(views), what n views that share nothing lose; the eps (against slopes summed over
-    ~1e5 pixels, ~1e3) makes 0/0 a gain of 1, a blank relief stays blank."""
+    [1, most]. `most` is sqrt(views), what n views that share nothing lose. The eps is tiny beside a garment's
+    energy (~1e3: squared slopes summed over ~1e5 pixels) and makes a blank relief's 0/0 a gain of 1."""
     m = mask[:, :1]
     e_plain = (m * plain_fine * plain_fine).sum(dim=(1, 2, 3), keepdim=True)
     e_mean = (m * mean_fine * mean_fine).sum(dim=(1, 2, 3), keepdim=True)
