@@ -72,15 +72,33 @@ def evaluation(r: dict) -> Evaluation:
                                  for n, ref in refs.items() if isinstance(ref, dict)})
 
 
-def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000) -> tuple[str, dict]:
-    """The table, intervals and target check of all runs in `paths`; writes compare.md, compare.json and the
-    target's picture (target.png: trainer.target_plot)."""
-    evals = [evaluation(r) for r in load_runs(paths)]
+def keep_rows(runs: list[dict], only: list[str] | None, ours: str) -> list[dict]:
+    """The runs of the rows named in `only` (all when None). A table often holds treatments of one method beside
+    each other (txr-ftl, txr-energy); the target check counts every other row as a competitor, so a check of one
+    treatment against the other methods names its rows. A name no table holds is an error, not an empty row."""
+    if only is None:
+        return runs
+    held = {r["method"] for r in runs}
+    missing = [m for m in dict.fromkeys(only) if m not in held]
+    if missing:
+        raise PoolError(f"--only names row(s) no table holds: {', '.join(missing)} (rows: {', '.join(sorted(held))})")
+    if ours not in only:
+        raise PoolError(f"--only leaves out --ours {ours!r}: the intervals are taken for it")
+    return [r for r in runs if r["method"] in only]
+
+
+def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000,
+         only: list[str] | None = None) -> tuple[str, dict]:
+    """The table, intervals and target check of all runs in `paths` (of the rows in `only`, when given); writes
+    compare.md, compare.json and the target's picture (target.png: trainer.target_plot)."""
+    evals = [evaluation(r) for r in keep_rows(load_runs(paths), only, ours)]
     md, data = report(evals, ours, n_boot=n_boot, resampled=POOL_RESAMPLED)
     names = ", ".join(str(p) for p in paths)
-    md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(evals)} runs. Intervals resample "
+    rows = f" Rows kept: {', '.join(only)}." if only is not None else ""
+    md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(evals)} runs.{rows} Intervals resample "
           f"{POOL_RESAMPLED}.\n\n") + md
     data["pooled_from"] = [str(p) for p in paths]
+    data["rows_kept"] = list(only) if only is not None else None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "compare.md").write_text(md)

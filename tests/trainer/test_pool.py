@@ -67,6 +67,40 @@ def test_two_tables_pool_into_one_with_a_shared_run_counted_once(tmp_path):
         pytest.approx(np.mean(list(ours.values())) + 0.5)
 
 
+def test_only_keeps_the_named_rows_and_the_check_counts_only_them(tmp_path):
+    """A second treatment of `ours` that beats it would stop the check; with --only it is out of the table."""
+    runs = [_run("ours", g, s, 5.0 + s / 10) for g in "AB" for s in range(3)]
+    runs += [_run("ours-other", g, s, 4.0 + s / 10) for g in "AB" for s in range(3)]
+    runs += [_run("base", g, s, 6.0 + s / 10) for g in "AB" for s in range(3)]
+    t = _table(tmp_path / "t/compare.json", runs)
+    _, every = pool([t], tmp_path / "all", n_boot=400)
+    assert {"ours-other", "base"} <= set(every["differences"]["rows"]) and every["rows_kept"] is None
+    md, kept = pool([t], tmp_path / "kept", n_boot=400, only=["ours", "base"])
+    assert "base" in kept["differences"]["rows"] and "ours-other" not in kept["differences"]["rows"]
+    assert kept["rows_kept"] == ["ours", "base"]
+    assert "Rows kept: ours, base." in md
+    assert kept["target"]["garments"][0]["runs"] == {"ours": 3, "base": 3}
+
+
+@pytest.mark.parametrize("only, message", [
+    (["ours", "nosuch"], "no table holds: nosuch"),
+    (["base"], "leaves out --ours 'ours'"),
+])
+def test_only_naming_a_missing_row_or_leaving_out_ours_is_refused(tmp_path, capsys, only, message):
+    t = _table(tmp_path / "t.json", [_run("ours", "A", 0, 5.0), _run("base", "A", 0, 6.0)])
+    with pytest.raises(PoolError, match=message):
+        pool([t], tmp_path / "out", only=only)
+    assert main(["--pool", str(t), "--only", *only, "--out", str(tmp_path / "out")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_only_without_pool_is_a_usage_error(tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["--compare", str(tmp_path / "r"), "--only", "ours"])
+    assert exc.value.code == 2
+
+
 def test_two_different_runs_under_one_name_are_refused(tmp_path):
     a = _table(tmp_path / "a.json", [_run("ours", "A", 0, 5.0)])
     b = _table(tmp_path / "b.json", [_run("ours", "A", 0, 5.4)])
