@@ -142,12 +142,14 @@ def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
     assert (tmp_path / "out" / "target.png").is_file() and data["target_plot"].endswith("target.png")
 
 
-def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(tmp_path):
-    """docs/compare_gpu/h100-768-2000/pooled was written by the README's `--pool` command from two committed tables;
-    the bootstrap is seeded, so the same command gives the same figures."""
-    pooled = ROOT / "docs/compare_gpu/h100-768-2000/pooled/compare.json"
-    stored = json.loads(pooled.read_text())
-    _, data = pool([ROOT / p for p in stored["pooled_from"]], tmp_path / "out")
+@pytest.mark.parametrize("table, ours", [("docs/compare_gpu/h100-768-2000/pooled", "ours"),
+                                         ("docs/compare_1k/mirrors/satin_6seeds", "txr-energy-none")])
+def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(tmp_path, table, ours):
+    """Each was written by a `--pool` command (the README's; docs/training.md "SatinShirt on six seeds", with
+    --only) from committed tables; the bootstrap is seeded, so the same command gives the same figures."""
+    stored = json.loads((ROOT / table / "compare.json").read_text())
+    _, data = pool([ROOT / p for p in stored["pooled_from"]], tmp_path / "out", ours=ours,
+                   only=stored.get("rows_kept"))
     assert data["differences"] == stored["differences"]
     assert data["target"] == stored["target"]
     assert all(not p.startswith("/") for p in stored["pooled_from"])
