@@ -29,6 +29,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--only", nargs="+", metavar="LABEL",
                    help="--pool: keep only these rows (method labels; --ours among them), e.g. one treatment of a "
                         "method and the methods it is checked against")
+    p.add_argument("--garments", nargs="+", metavar="GARMENT",
+                   help="--pool: read only these garments' runs (the full id or the fabric, e.g. SatinShirt), so "
+                        "a part of a check can come from one table and be pooled with the rest after")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
@@ -61,11 +64,15 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         parser.error(f"--bootstrap must be at least 100 for a 95 % interval; got {args.bootstrap}")
     if args.only is not None and args.pool is None:
         parser.error("--only keeps rows of a pooled table; it goes with --pool (with --compare, name the runs)")
+    if args.garments is not None and args.pool is None:
+        parser.error("--garments keeps garments of a pooled table; it goes with --pool "
+                     "(with --compare, name the runs)")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if args.pool is not None:
         from trainer.pool import PoolError, pool
         try:
-            md, data = pool(args.pool, args.out, ours=args.ours, n_boot=args.bootstrap, only=args.only)
+            md, data = pool(args.pool, args.out, ours=args.ours, n_boot=args.bootstrap, only=args.only,
+                            garments=args.garments)
         except PoolError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2

@@ -31,12 +31,20 @@ def _scores(d: dict) -> dict[str, float]:
     return {k: float(d[k]) for k in DIFF_METRICS if target_plot.is_score(d.get(k))}
 
 
-def load_runs(paths: list[Path]) -> list[dict]:
-    """Every run of the tables, each once: a run in two tables (the same method, garment, seed, step, crop,
-    weights and checkpoint) with the same scores is kept once; with other scores it is an error, since two runs
-    would then be counted as one."""
+def garment_matches(garment: str, name: str) -> bool:
+    """A garment is named by its full id (singleskit_SatinShirt_padded_900_x1) or the fabric in it (SatinShirt)."""
+    return name == garment or name in garment.split("_")
+
+
+def load_runs(paths: list[Path], garments: list[str] | None = None) -> list[dict]:
+    """Every run of the tables (on `garments`, when given), each once: a run in two tables (the same method,
+    garment, seed, step, crop, weights and checkpoint) with the same scores is kept once; with other scores it is an
+    error, since two runs would then be counted as one. The same seed trained again on another machine is such a
+    pair; a check that takes one garment's runs from one table and another's from a second pools each part on its
+    garments (`garments` leaves the others unread), then pools the parts."""
     seen: dict[tuple, tuple[dict, Path]] = {}
     out: list[dict] = []
+    held: set[str] = set()
     for path in paths:
         try:
             data = json.loads(Path(path).read_text())
@@ -50,6 +58,9 @@ def load_runs(paths: list[Path]) -> list[dict]:
                 raise PoolError(f"{path}: run {i} has no method and garment")
             if not _scores(r):
                 raise PoolError(f"{path}: run {i} ({r['method']} on {r['garment']}) has no finite score")
+            held.add(r["garment"])
+            if garments is not None and not any(garment_matches(r["garment"], g) for g in garments):
+                continue
             key = tuple(json.dumps(r.get(k)) for k in IDENTITY)
             if key in seen:
                 first, where = seen[key]
@@ -61,6 +72,10 @@ def load_runs(paths: list[Path]) -> list[dict]:
                 continue
             seen[key] = (r, Path(path))
             out.append(dict(r) | {"pooled_from": str(path)})
+    missing = [g for g in dict.fromkeys(garments or ()) if not any(garment_matches(h, g) for h in held)]
+    if missing:
+        raise PoolError(f"--garments names garment(s) no table holds: {', '.join(missing)} "
+                        f"(garments: {', '.join(sorted(held))})")
     return out
 
 
@@ -88,17 +103,20 @@ def keep_rows(runs: list[dict], only: list[str] | None, ours: str) -> list[dict]
 
 
 def pool(paths: list[Path], out_dir: Path, *, ours: str = "ours", n_boot: int = 2000,
-         only: list[str] | None = None) -> tuple[str, dict]:
-    """The table, intervals and target check of all runs in `paths` (of the rows in `only`, when given); writes
-    compare.md, compare.json and the target's picture (target.png: trainer.target_plot)."""
-    evals = [evaluation(r) for r in keep_rows(load_runs(paths), only, ours)]
+         only: list[str] | None = None, garments: list[str] | None = None) -> tuple[str, dict]:
+    """The table, intervals and target check of all runs in `paths` (of the rows in `only` and the garments in
+    `garments`, when given); writes compare.md, compare.json and the target's picture (trainer.target_plot)."""
+    runs = keep_rows(load_runs(paths, garments), only, ours)
+    evals = [evaluation(r) for r in runs]
     md, data = report(evals, ours, n_boot=n_boot, resampled=POOL_RESAMPLED)
     names = ", ".join(str(p) for p in paths)
     rows = f" Rows kept: {', '.join(only)}." if only is not None else ""
+    rows += f" Garments kept: {', '.join(garments)}." if garments is not None else ""
     md = (f"Pooled from {len(paths)} stored table(s) ({names}): {len(evals)} runs.{rows} Intervals resample "
           f"{POOL_RESAMPLED}.\n\n") + md
     data["pooled_from"] = [str(p) for p in paths]
     data["rows_kept"] = list(only) if only is not None else None
+    data["garments_kept"] = list(garments) if garments is not None else None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "compare.md").write_text(md)

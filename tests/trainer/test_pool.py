@@ -101,6 +101,50 @@ def test_only_without_pool_is_a_usage_error(tmp_path):
     assert exc.value.code == 2
 
 
+def test_garments_reads_only_theirs_so_a_check_pools_its_parts_from_different_tables(tmp_path):
+    """Garment B's seed 0 was trained again on another machine (other scores): both tables at once are refused, but
+    A from the first and B from the second, each pooled on its garment, pool into the check of both."""
+    first = _table(tmp_path / "first.json", [_run(m, g, s, v + s / 10) for g in "AB" for s in range(3)
+                                             for m, v in (("ours", 5.0), ("base", 6.0))])
+    again = _table(tmp_path / "again.json", [_run(m, "B", s, v + s / 7) for s in range(3)
+                                             for m, v in (("ours", 4.0), ("base", 6.5))])
+    with pytest.raises(PoolError, match="two runs under one name"):
+        load_runs([first, again])
+    assert {r["garment"] for r in load_runs([first, again], ["A"])} == {"A"}
+    md_a, a = pool([first, again], tmp_path / "a", n_boot=400, garments=["A"])
+    _, b = pool([again], tmp_path / "b", n_boot=400, garments=["B"])
+    assert "Garments kept: A." in md_a and a["garments_kept"] == ["A"]
+    _, both = pool([tmp_path / "a/compare.json", tmp_path / "b/compare.json"], tmp_path / "both", n_boot=400)
+    assert [g["garment"] for g in both["target"]["garments"]] == ["A", "B"]
+    assert [g["runs"] for g in both["target"]["garments"]] == [{"ours": 3, "base": 3}] * 2
+    d = both["differences"]["rows"]["base"]["full_angle_deg_outside"]["diff"]
+    assert d == pytest.approx(np.mean([-1.0, -2.5]))
+
+
+def test_garments_matches_the_fabric_inside_a_full_id(tmp_path):
+    t = _table(tmp_path / "t.json", [_run("ours", "singleskit_SatinShirt_padded_900_x1", 0, 5.0),
+                                     _run("ours", "singleskit_KnitJacket_padded_900_x1", 0, 6.0)])
+    assert [r["garment"] for r in load_runs([t], ["SatinShirt"])] == ["singleskit_SatinShirt_padded_900_x1"]
+    assert len(load_runs([t], ["singleskit_KnitJacket_padded_900_x1", "SatinShirt"])) == 2
+
+
+@pytest.mark.parametrize("garments", [["Satin"], ["KnitJacket", "Nosuch"]])
+def test_garments_naming_no_garment_is_refused(tmp_path, capsys, garments):
+    t = _table(tmp_path / "t.json", [_run("ours", "singleskit_KnitJacket_padded_900_x1", 0, 5.0),
+                                     _run("base", "singleskit_KnitJacket_padded_900_x1", 0, 6.0)])
+    with pytest.raises(PoolError, match="no table holds"):
+        load_runs([t], garments)
+    assert main(["--pool", str(t), "--garments", *garments, "--out", str(tmp_path / "out")]) == 2
+    assert "--garments names garment(s) no table holds" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_garments_without_pool_is_a_usage_error(tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["--compare", str(tmp_path / "r"), "--garments", "SatinShirt"])
+    assert exc.value.code == 2
+
+
 def test_two_different_runs_under_one_name_are_refused(tmp_path):
     a = _table(tmp_path / "a.json", [_run("ours", "A", 0, 5.0)])
     b = _table(tmp_path / "b.json", [_run("ours", "A", 0, 5.4)])
@@ -149,7 +193,7 @@ def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(t
     --only) from committed tables; the bootstrap is seeded, so the same command gives the same figures."""
     stored = json.loads((ROOT / table / "compare.json").read_text())
     _, data = pool([ROOT / p for p in stored["pooled_from"]], tmp_path / "out", ours=ours,
-                   only=stored.get("rows_kept"))
+                   only=stored.get("rows_kept"), garments=stored.get("garments_kept"))
     assert data["differences"] == stored["differences"]
     assert data["target"] == stored["target"]
     assert all(not p.startswith("/") for p in stored["pooled_from"])
