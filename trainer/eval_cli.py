@@ -33,10 +33,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="--pool: read only these garments' runs (the full id or the fabric, e.g. SatinShirt), so "
                         "a part of a check can come from one table and be pooled with the rest after")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
-    p.add_argument("--relief", choices=("none", "rms", "ls"), default="none",
+    p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
                         "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
-                        "gain; default none: as trained); with --compare, RUN@rms calibrates one run only")
+                        "gain, lift the ls gain floored at 1; default none: as trained); with --compare, RUN@rms calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "
                         "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief, "

@@ -78,6 +78,23 @@ def test_misplaced_bumps_get_a_smaller_least_squares_gain(garment):
     assert g_ls < g_rms and 1.0 < g_rms < 2.0
 
 
+@settings(max_examples=15, deadline=None)
+@given(shrink=st.floats(0.3, 3.0), noise=st.floats(0.0, 0.5))
+def test_lift_is_the_least_squares_gain_floored_at_one(garment, shrink, noise):
+    """It gives a shrunken relief its strength back as ls does, and where ls would flatten it (a relief too strong,
+    or bumps misplaced) it leaves it as trained."""
+    f = touch_field(garment)
+    rms = float(np.sqrt(np.mean(f[f != 0] ** 2)))
+    net = FieldNet(touch_field(garment, scale=shrink, noise=noise * rms, seed=3))
+    ls, lift = fit_relief_gain(net, garment, SIDE, "ls"), fit_relief_gain(net, garment, SIDE, "lift")
+    assert lift.rule == "lift" and (lift.pixels, lift.touches) == (ls.pixels, ls.touches)
+    assert lift.gain == max(ls.gain, 1.0)
+    if shrink < 0.9 and noise == 0.0:
+        assert lift.gain == pytest.approx(1.0 / shrink, rel=1e-3)
+    if shrink > 1.1:
+        assert lift.gain == 1.0
+
+
 def test_only_training_touches_are_read(garment):
     """Two models that agree on the training touches' pixels and nowhere else (not on the held-out touches either)
     get the same gain."""
@@ -92,7 +109,7 @@ def test_only_training_touches_are_read(garment):
             pytest.approx(fit_relief_gain(FieldNet(base), garment, SIDE, rule).gain, rel=1e-9)
 
 
-@pytest.mark.parametrize("rule", ["rms", "ls"])
+@pytest.mark.parametrize("rule", ["rms", "ls", "lift"])
 def test_a_flat_model_is_refused_without_dividing_by_zero(garment, rule):
     with np.errstate(all="raise"):
         with pytest.raises(CalibrationError, match="undefined"):
@@ -142,6 +159,7 @@ def test_run_arguments_name_the_relief():
     assert parse_run("runs/a@raw@ls") == parse_run("runs/a@ls@raw") == RunSpec(Path_("runs/a"), "raw", "ls")
     assert parse_run("runs/a", relief="rms") == RunSpec(Path_("runs/a"), "average", "rms")
     assert parse_run("runs/a@ls", relief="rms").relief == "ls"   # a run's own suffix wins over the flag's
+    assert parse_run("runs/a@flip+transpose-energy@lift").relief == "lift"
     assert str(RunSpec(Path_("runs/a"), "raw", "rms")) == "runs/a@raw@rms"
     for bad in ("runs/a@raw@raw", "runs/a@rms@rms", "runs/a@ls@rms", "@rms", "runs/a@none", "runs/a@big"):
         with pytest.raises(ValueError):
@@ -152,8 +170,8 @@ def test_run_arguments_name_the_relief():
 
 
 def test_calibrated_scores_are_stored_apart(tmp_path):
-    names = {_paths(tmp_path, "latest", w, r)[0].name for w in ("average", "raw") for r in ("none", "rms", "ls")}
-    assert len(names) == 6 and "compare-latest.json" in names and "compare-latest-raw-rms.json" in names
+    names = {_paths(tmp_path, "latest", w, r)[0].name for w in ("average", "raw") for r in ("none", "rms", "ls", "lift")}
+    assert len(names) == 8 and "compare-latest.json" in names and "compare-latest-raw-rms.json" in names
 
 
 def Path_(s):
