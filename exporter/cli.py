@@ -71,8 +71,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--display-name", default=None)
     p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
                    help="multiply the tactile output by one gain fitted on the garment's training touches "
-                        "(trainer/calibration.py; rms matches their relief's energy, lift never shrinks it); default none: "
-                        "as trained")
+                        "(trainer/calibration.py; rms matches their relief's energy, lift never shrinks it); "
+                        "default none: as trained")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
                         "generator passes: the tactile latency grows with them; a -low mode averages only the coarse "

@@ -36,7 +36,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
                         "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
-                        "gain, lift the ls gain floored at 1; default none: as trained); with --compare, RUN@rms calibrates one run only")
+                        "gain, lift the ls gain floored at 1; default none: as trained); with --compare, RUN@rms "
+                        "calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "
                         "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief, "

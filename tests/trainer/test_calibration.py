@@ -170,7 +170,8 @@ def test_run_arguments_name_the_relief():
 
 
 def test_calibrated_scores_are_stored_apart(tmp_path):
-    names = {_paths(tmp_path, "latest", w, r)[0].name for w in ("average", "raw") for r in ("none", "rms", "ls", "lift")}
+    names = {_paths(tmp_path, "latest", w, r)[0].name
+             for w in ("average", "raw") for r in ("none", "rms", "ls", "lift")}
     assert len(names) == 8 and "compare-latest.json" in names and "compare-latest-raw-rms.json" in names
 
 
