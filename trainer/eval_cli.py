@@ -30,8 +30,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="--pool: keep only these rows (method labels; --ours among them), e.g. one treatment of a "
                         "method and the methods it is checked against")
     p.add_argument("--garments", nargs="+", metavar="GARMENT",
-                   help="--pool: read only these garments' runs (the full id or the fabric, e.g. SatinShirt), so "
-                        "a part of a check can come from one table and be pooled with the rest after")
+                   help="--pool: read only these garments' runs (any name of one: SatinShirt, satin-shirt, its "
+                        "folder), so a part of a check can come from one table and be pooled with the rest after")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
                    help="calibrate each run's tactile output with one gain fitted on its garment's training touches "

@@ -13,6 +13,7 @@ import json
 import math
 from pathlib import Path
 
+from kiosk.contract.garment import same_garment
 from trainer import target_plot
 from trainer.bootstrap import single_unit
 from trainer.compare import DIFF_METRICS, report
@@ -29,11 +30,6 @@ class PoolError(ValueError):
 
 def _scores(d: dict) -> dict[str, float]:
     return {k: float(d[k]) for k in DIFF_METRICS if target_plot.is_score(d.get(k))}
-
-
-def garment_matches(garment: str, name: str) -> bool:
-    """A garment is named by its full id (singleskit_SatinShirt_padded_900_x1) or the fabric in it (SatinShirt)."""
-    return name == garment or name in garment.split("_")
 
 
 def load_runs(paths: list[Path], garments: list[str] | None = None) -> list[dict]:
@@ -59,7 +55,7 @@ def load_runs(paths: list[Path], garments: list[str] | None = None) -> list[dict
             if not _scores(r):
                 raise PoolError(f"{path}: run {i} ({r['method']} on {r['garment']}) has no finite score")
             held.add(r["garment"])
-            if garments is not None and not any(garment_matches(r["garment"], g) for g in garments):
+            if garments is not None and not any(same_garment(r["garment"], g) for g in garments):
                 continue
             key = tuple(json.dumps(r.get(k)) for k in IDENTITY)
             if key in seen:
@@ -72,7 +68,7 @@ def load_runs(paths: list[Path], garments: list[str] | None = None) -> list[dict
                 continue
             seen[key] = (r, Path(path))
             out.append(dict(r) | {"pooled_from": str(path)})
-    missing = [g for g in dict.fromkeys(garments or ()) if not any(garment_matches(h, g) for h in held)]
+    missing = [g for g in dict.fromkeys(garments or ()) if not any(same_garment(h, g) for h in held)]
     if missing:
         raise PoolError(f"--garments names garment(s) no table holds: {', '.join(missing)} "
                         f"(garments: {', '.join(sorted(held))})")
