@@ -12,6 +12,9 @@
 # (skips the calibration), EXTRA (more `--set`s for every run), PACK (weights sheets infer: what to pack beside the
 # table and log), SCORE (1; 0 skips the on-device scoring: the packed fp16 weights are scored elsewhere with
 # `vtkiosk eval --compare`, and training gets all of BUDGET_S but the packing's reserve, 20 s, 45 s with infer).
+# RECIPES (a file of lines `LABEL ARGS...`, `#` comments: each LABEL is a run folder trained with its own ARGS,
+# --method included, instead of the built-in recipes; METHODS then defaults to its labels and the weights pack in
+# files of at most 15 MiB, weights-1.tar on, since a lease returns 8 files at most: scripts/recipes/).
 # RESUME (1: continue, in the WORK folder a deadline left behind, every run short of STEPS, which it needs; finished
 # runs are left as they are and all are scored and packed as one table; a warm machine keeps the folder, which the
 # log names). Every stage has its own deadline inside BUDGET_S (default 540), so the packing always runs; the exit
@@ -53,7 +56,12 @@ log() { echo "[$(el) s] $*" | tee -a "$OUT/gpu_table.log"; }
 
 COMMON="--data $DATA --preset cpu --set data.crop=$CROP --set train.threads=1 --set train.progress=false \
 --set train.device=$DEVICE --set train.ema=0.999 ${EXTRA:-}"
-recipe() {   # the full table's recipe of each method (docs/training.md)
+recipe() {   # the full table's recipe of each method (docs/training.md), or the RECIPES file's line
+  if [ -n "${RECIPES:-}" ]; then
+    local line; line=$(grep -v '^\s*#' "$RECIPES" | awk -v l="$1" '$1 == l { $1 = ""; print; exit }')
+    [ -n "$line" ] || { echo "gpu_table.sh: no recipe for $1 in $RECIPES" >&2; return 1; }
+    echo "$line"; return
+  fi
   case $1 in
     ours|no-tactile-gan) echo "--method $1 --set loss.tactile_r1=10 --set loss.diffaug=color,translation,cutout" ;;
     ours-no-gan) echo "--method ours-no-gan --set optim.lr_policy=linear --set loss.diffaug=" ;;
@@ -70,7 +78,8 @@ train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method
       [ -e "$root/$g/$m/checkpoints/latest.pt" ] && more=(--resume)
       log "$g/$m: ${more[*]:-starting} at step $at of $steps"
     fi
-    timeout -s TERM "$(left "$deadline")" $PY -m vtkiosk train $COMMON $(recipe "$m") --garment "$g" \
+    local r; r=$(recipe "$m") || { log "$g/$m: no recipe; not trained"; continue; }
+    timeout -s TERM "$(left "$deadline")" $PY -m vtkiosk train $COMMON $r --garment "$g" \
       --steps "$steps" "$@" "${more[@]}" --out "$root/$g/$m" >> "$root/$g/$m.log" 2>&1 &
   done; done
   wait
@@ -88,6 +97,11 @@ log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_EN
 # 1. the step time of all runs side by side (CAL_STEPS, 80: the second half's, so the warm-up is left out; the CLIP
 #    discriminator on from the start, so its step is in the time and its code has run here before the real runs;
 #    10 % kept for the real runs' validation and sample sheets, which the calibration leaves out)
+if [ -n "${RECIPES:-}" ]; then
+  [ -f "$RECIPES" ] || { log "RECIPES: no file $RECIPES"; exit 2; }
+  METHODS=${METHODS:-$(grep -v '^\s*#' "$RECIPES" | awk 'NF { print $1 }' | tr '\n' ' ')}
+  [ -n "${STEPS:-}" ] || { log "RECIPES needs STEPS (the calibration fits the built-in recipes only)"; exit 2; }
+fi
 METHODS=${METHODS:-ours no-tactile-gan ours-no-gan}
 if [ -n "${STEPS:-}" ]; then
   N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
@@ -166,8 +180,21 @@ mkdir -p "$W/table"
 tar -C "$W" -czf "$OUT/table.tar.gz" --exclude='*.pt' --exclude=samples --exclude='sheet_*' table runs
 SHEETS=$(cd "$W" && ls table/sheet_* 2>/dev/null)
 [[ " $PACK " == *" sheets "* ]] && [ -n "$SHEETS" ] && tar -C "$W" -cf "$OUT/sheets.tar" $SHEETS
-[[ " $PACK " == *" weights "* ]] && for m in $METHODS; do
-  tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
-done
+if [[ " $PACK " == *" weights "* ]] && [ -n "${RECIPES:-}" ]; then
+  # many labels: fill files of at most 15 MiB in label order (a lease returns 8 files, 16 MiB each)
+  n=1; size=0; files=()
+  for m in $METHODS; do for d in $(cd "$W" && ls -d runs/*/"$m"/weights 2>/dev/null); do
+    s=$(du -sk "$W/$d" | cut -f1)
+    if [ ${#files[@]} -gt 0 ] && [ $((size + s)) -gt 15360 ]; then
+      tar -C "$W" -cf "$OUT/weights-$n.tar" "${files[@]}"; n=$((n + 1)); size=0; files=()
+    fi
+    files+=("$d"); size=$((size + s))
+  done; done
+  [ ${#files[@]} -gt 0 ] && tar -C "$W" -cf "$OUT/weights-$n.tar" "${files[@]}"
+elif [[ " $PACK " == *" weights "* ]]; then
+  for m in $METHODS; do
+    tar -C "$W" -cf "$OUT/weights-$m.tar" $(cd "$W" && ls -d runs/*/"$m"/weights)
+  done
+fi
 log "packed: $(ls -s "$OUT" | tr '\n' ' ')"
 [ "$FAILED" = 0 ] || { log "$FAILED run(s) failed (above)"; exit 1; }
