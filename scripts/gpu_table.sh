@@ -99,7 +99,7 @@ log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_EN
 #    10 % kept for the real runs' validation and sample sheets, which the calibration leaves out)
 if [ -n "${RECIPES:-}" ]; then
   [ -f "$RECIPES" ] || { log "RECIPES: no file $RECIPES"; exit 2; }
-  METHODS=${METHODS:-$(grep -v '^\s*#' "$RECIPES" | awk 'NF { print $1 }' | tr '\n' ' ')}
+  METHODS=${METHODS:-$(grep -v '^\s*#' "$RECIPES" | awk 'NF { print $1 }' | xargs)}
   [ -n "${STEPS:-}" ] || { log "RECIPES needs STEPS (the calibration fits the built-in recipes only)"; exit 2; }
 fi
 METHODS=${METHODS:-ours no-tactile-gan ours-no-gan}

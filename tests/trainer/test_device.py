@@ -291,3 +291,45 @@ def test_the_gpu_table_calibration_times_the_steady_steps_and_fits_the_schedule_
     assert abs(float(m.group(1)) - 1.1 * cal["seconds_per_step_steady"]) < 1e-3
     run = json.loads((tmp_path / "work" / "runs" / garment / "ours-no-gan" / "metrics.json").read_text())["train"]
     assert run["step"] == 50 and not run["stopped_early"]
+
+
+def test_the_gpu_table_script_trains_a_recipes_file_of_labelled_runs(tmp_path):
+    """RECIPES: each line's label is a run folder trained with that line's own arguments (the blind test's twelve
+    runs of one garment in one call), the weights pack in numbered files, and a label with no line is refused by
+    name rather than trained with another recipe."""
+    import os
+    import subprocess
+    import sys
+    import tarfile
+    from pathlib import Path
+
+    from trainer.data.synthetic import generate_dataset
+    generate_dataset(tmp_path / "data", garments=1, seed=0, frame=(192, 144), progress=False)
+    (garment,) = [p.name for p in (tmp_path / "data").iterdir() if p.is_dir()]
+    recipes = tmp_path / "recipes.txt"
+    recipes.write_text("# two labelled runs\nono-s3 --method ours-no-gan --set train.seed=3\n\n"
+                       "ono-s4 --method ours-no-gan --set train.seed=4\n")
+    env = dict(os.environ, OUT=str(tmp_path / "out"), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
+               GARMENTS=garment, CROP="256", DEVICE="cpu", STEPS="1", SCORE="0", PACK="weights",
+               RECIPES=str(recipes))
+    script = str(Path(__file__).resolve().parents[2] / "scripts" / "gpu_table.sh")
+    done = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "training 2 runs (ono-s3 ono-s4) for 1 steps (given)" in (tmp_path / "out" / "gpu_table.log").read_text()
+    for label, seed in (("ono-s3", 3), ("ono-s4", 4)):
+        command = (tmp_path / "work" / "runs" / garment / label / "command.txt").read_text()
+        assert f"--method ours-no-gan --set train.seed={seed}" in command
+    with tarfile.open(tmp_path / "out" / "weights-1.tar") as tar:
+        names = set(tar.getnames())
+    assert {f"runs/{garment}/{m}/weights/latest.pt" for m in ("ono-s3", "ono-s4")} <= names
+
+    missing = subprocess.run(["bash", script, "200"], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                             env=dict(env, WORK=str(tmp_path / "work2"), METHODS="ono-s3 nowhere"))
+    assert missing.returncode == 1
+    log = (tmp_path / "out" / "gpu_table.log").read_text()
+    assert f"{garment}/nowhere: no recipe; not trained" in log and f"{garment}/nowhere: failed" in log
+    no_steps = {k: v for k, v in env.items() if k != "STEPS"}
+    refused = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=dict(no_steps, WORK=str(tmp_path / "w3")),
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and "RECIPES needs STEPS" in (tmp_path / "out" / "gpu_table.log").read_text()
