@@ -94,14 +94,15 @@ run_step() {   # the step a run's record reached (0: none yet)
 log "machine: $(tr '\n' ' ' < "$OUT/machine.txt")"
 log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_END} s of ${BUDGET} s; work folder $W"
 
-# 1. the step time of all runs side by side (CAL_STEPS, 80: the second half's, so the warm-up is left out; the CLIP
-#    discriminator on from the start, so its step is in the time and its code has run here before the real runs;
-#    10 % kept for the real runs' validation and sample sheets, which the calibration leaves out)
 if [ -n "${RECIPES:-}" ]; then
   [ -f "$RECIPES" ] || { log "RECIPES: no file $RECIPES"; exit 2; }
   METHODS=${METHODS:-$(grep -v '^\s*#' "$RECIPES" | awk 'NF { print $1 }' | xargs)}
   [ -n "${STEPS:-}" ] || { log "RECIPES needs STEPS (the calibration fits the built-in recipes only)"; exit 2; }
 fi
+
+# 1. the step time of all runs side by side (CAL_STEPS, 80: the second half's, so the warm-up is left out; the CLIP
+#    discriminator on from the start, so its step is in the time and its code has run here before the real runs;
+#    10 % kept for the real runs' validation and sample sheets, which the calibration leaves out)
 METHODS=${METHODS:-ours no-tactile-gan ours-no-gan}
 if [ -n "${STEPS:-}" ]; then
   N=$(( $(echo $GARMENTS | wc -w) * $(echo $METHODS | wc -w) ))
