@@ -160,21 +160,28 @@ def test_the_r1_probe_recomputes_the_run_s_own_penalty(tmp_path):
     assert (out / "metrics.json").exists()          # an ordinary run directory besides
 
 
-def _gpu_table_lease(tmp_path, *, garments, steps):
-    """scripts/gpu_table.sh's first call on the CPU: `garments` synthetic garments, the first trained `steps` steps
-    with `ours-no-gan`; returns the garments' names, the call's environment and the script."""
+def _gpu_table_env(tmp_path, *, garments, **env):
+    """`garments` synthetic garments and the environment of a scripts/gpu_table.sh call on the CPU (`env` on top);
+    returns the garments' names, that environment and the script."""
     import os
-    import subprocess
     import sys
     from pathlib import Path
 
     from trainer.data.synthetic import generate_dataset
     generate_dataset(tmp_path / "data", garments=garments, seed=0, frame=(192, 144), progress=False)
     names = sorted(p.name for p in (tmp_path / "data").iterdir() if p.is_dir())
-    env = dict(os.environ, OUT=str(tmp_path / "out"), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
-               GARMENTS=names[0], CROP="256", DEVICE="cpu", STEPS=str(steps), METHODS="ours-no-gan", SCORE="0",
-               PACK="weights")
+    base = dict(os.environ, OUT=str(tmp_path / "out"), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
+                GARMENTS=names[0], CROP="256", DEVICE="cpu", SCORE="0", PACK="weights")
     script = str(Path(__file__).resolve().parents[2] / "scripts" / "gpu_table.sh")
+    return names, dict(base, **env), script
+
+
+def _gpu_table_lease(tmp_path, *, garments, steps):
+    """scripts/gpu_table.sh's first call on the CPU: `garments` synthetic garments, the first trained `steps` steps
+    with `ours-no-gan`; returns the garments' names, the call's environment and the script."""
+    import subprocess
+
+    names, env, script = _gpu_table_env(tmp_path, garments=garments, STEPS=str(steps), METHODS="ours-no-gan")
     first = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
                            timeout=300)
     assert first.returncode == 0, first.stdout + first.stderr
@@ -297,22 +304,13 @@ def test_the_gpu_table_script_trains_a_recipes_file_of_labelled_runs(tmp_path):
     """RECIPES: each line's label is a run folder trained with that line's own arguments (the blind test's twelve
     runs of one garment in one call), the weights pack in numbered files, and a label with no line is refused by
     name rather than trained with another recipe."""
-    import os
     import subprocess
-    import sys
     import tarfile
-    from pathlib import Path
 
-    from trainer.data.synthetic import generate_dataset
-    generate_dataset(tmp_path / "data", garments=1, seed=0, frame=(192, 144), progress=False)
-    (garment,) = [p.name for p in (tmp_path / "data").iterdir() if p.is_dir()]
     recipes = tmp_path / "recipes.txt"
     recipes.write_text("# two labelled runs\nono-s3 --method ours-no-gan --set train.seed=3\n\n"
                        "ono-s4 --method ours-no-gan --set train.seed=4\n")
-    env = dict(os.environ, OUT=str(tmp_path / "out"), WORK=str(tmp_path / "work"), PY=sys.executable, DATA="data",
-               GARMENTS=garment, CROP="256", DEVICE="cpu", STEPS="1", SCORE="0", PACK="weights",
-               RECIPES=str(recipes))
-    script = str(Path(__file__).resolve().parents[2] / "scripts" / "gpu_table.sh")
+    (garment,), env, script = _gpu_table_env(tmp_path, garments=1, STEPS="1", RECIPES=str(recipes))
     done = subprocess.run(["bash", script, "200"], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
