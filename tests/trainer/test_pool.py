@@ -189,11 +189,13 @@ def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
 @pytest.mark.parametrize("table, ours", [("docs/compare_gpu/h100-768-2000/pooled", "ours"),
                                          ("docs/compare_1k/mirrors/satin_6seeds", "txr-energy-none"),
                                          ("docs/compare_1k/mirrors/all4_lift/cdk", "txr-lift"),
-                                         ("docs/compare_1k/mirrors/all4_lift", "txr-lift")])
+                                         ("docs/compare_1k/mirrors/all4_lift", "txr-lift"),
+                                         ("docs/compare_1k/mirrors/all4_blind", "txr-lift")])
 def test_the_committed_pooled_table_is_what_pool_makes_of_its_committed_inputs(tmp_path, table, ours):
     """Each was written by a `--pool` command (the README's; docs/training.md "SatinShirt on six seeds", with
-    --only; "One gain rule for the four garments", with --garments, then pooling the parts) from committed tables;
-    the bootstrap is seeded, so the same command gives the same figures."""
+    --only; "One gain rule for the four garments", with --garments, then pooling the parts; "A blind test of
+    `lift`", the four garments' blind tables) from committed tables; the bootstrap is seeded, so the same command
+    gives the same figures."""
     stored = json.loads((ROOT / table / "compare.json").read_text())
     _, data = pool([ROOT / p for p in stored["pooled_from"]], tmp_path / "out", ours=ours,
                    only=stored.get("rows_kept"), garments=stored.get("garments_kept"))
