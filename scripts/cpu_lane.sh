@@ -10,6 +10,8 @@
 # STEPS (1000), PY (.venv/bin/python), EXTRA (more arguments for every run). Progress lines go to $ROOT/lane.log,
 # each run's output to $ROOT/LABEL.log.
 set -u
+# shellcheck source=scripts/recipes_lib.sh
+. "$(dirname "${BASH_SOURCE[0]}")/recipes_lib.sh"
 : "${GARMENT:?set GARMENT}" "${ROOT:?set ROOT, the folder that holds the runs}"
 RECIPES=${RECIPES:-scripts/recipes/blind_lift.txt}
 DATA=${DATA:-data/hard640}
@@ -24,22 +26,18 @@ T="--data $DATA --preset cpu --steps $STEPS --set train.ema=0.999 --set train.th
 T="$T ${EXTRA:-}"
 mkdir -p "$ROOT"
 log() { echo "$(date -u +%FT%TZ) $GARMENT $*" | tee -a "$ROOT/lane.log"; }
-step() {   # the step a run's record reached (0: none yet)
-  "$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['train']['step'])" "$1/metrics.json" \
-    2>/dev/null || echo 0
-}
 rc=0
 for label in "$@"; do
-  args=$(grep -v '^\s*#' "$RECIPES" | awk -v l="$label" '$1 == l { $1 = ""; print; exit }')
+  args=$(recipe_args "$RECIPES" "$label")
   [ -n "$args" ] || { log "$label: no recipe in $RECIPES; skipped"; rc=1; continue; }
   run=$ROOT/$label
-  at=$(step "$run")
+  at=$(run_step "$PY" "$run")
   if [ "$at" -ge "$STEPS" ]; then log "$label: done ($at steps); skipped"; continue; fi
   more=(); [ -e "$run/checkpoints/latest.pt" ] && more=(--resume)
   log "$label: ${more[*]:-starting} at step $at"
   # shellcheck disable=SC2086  # T and args are word lists
   if "$PY" -m vtkiosk train $T $args --garment "$GARMENT" "${more[@]}" --out "$run" >> "$ROOT/$label.log" 2>&1; then
-    log "$label: finished at step $(step "$run")"
+    log "$label: finished at step $(run_step "$PY" "$run")"
   else
     log "$label: failed (exit $?); see $ROOT/$label.log"; rc=1
   fi

@@ -21,6 +21,8 @@
 # status is 1 when a run failed.
 set -u
 START=$(date +%s)
+# shellcheck source=scripts/recipes_lib.sh
+. "$(dirname "${BASH_SOURCE[0]}")/recipes_lib.sh"
 BUDGET=${1:-540}
 : "${OUT:?set OUT to the folder that collects the results}"
 PY=${PY:-python3}
@@ -58,7 +60,7 @@ COMMON="--data $DATA --preset cpu --set data.crop=$CROP --set train.threads=1 --
 --set train.device=$DEVICE --set train.ema=0.999 ${EXTRA:-}"
 recipe() {   # the full table's recipe of each method (docs/training.md), or the RECIPES file's line
   if [ -n "${RECIPES:-}" ]; then
-    local line; line=$(grep -v '^\s*#' "$RECIPES" | awk -v l="$1" '$1 == l { $1 = ""; print; exit }')
+    local line; line=$(recipe_args "$RECIPES" "$1")
     [ -n "$line" ] || { echo "gpu_table.sh: no recipe for $1 in $RECIPES" >&2; return 1; }
     echo "$line"; return
   fi
@@ -73,7 +75,7 @@ train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method
     mkdir -p "$root/$g"
     local more=()
     if [ "${RESUME:-0}" = 1 ]; then   # a finished run is left alone; a stopped one continues from its checkpoint
-      local at; at=$(run_step "$root/$g/$m")
+      local at; at=$(run_step "$PY" "$root/$g/$m")
       [ "$at" -ge "$steps" ] && continue
       [ -e "$root/$g/$m/checkpoints/latest.pt" ] && more=(--resume)
       log "$g/$m: ${more[*]:-starting} at step $at of $steps"
@@ -84,9 +86,6 @@ train_all() {  # train_all ROOT STEPS DEADLINE EXTRA... : every (garment, method
   done; done
   wait
 }
-run_step() {   # the step a run's record reached (0: none yet)
-  $PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train']['step'])" "$1/metrics.json" 2>/dev/null || echo 0
-}
 
 { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
   $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.is_available())"
@@ -96,7 +95,7 @@ log "deadlines: training ${TRAIN_END} s, scoring ${EVAL_END} s, table ${TABLE_EN
 
 if [ -n "${RECIPES:-}" ]; then
   [ -f "$RECIPES" ] || { log "RECIPES: no file $RECIPES"; exit 2; }
-  METHODS=${METHODS:-$(grep -v '^\s*#' "$RECIPES" | awk 'NF { print $1 }' | xargs)}
+  METHODS=${METHODS:-$(recipe_labels "$RECIPES")}
   [ -n "${STEPS:-}" ] || { log "RECIPES needs STEPS (the calibration fits the built-in recipes only)"; exit 2; }
 fi
 
