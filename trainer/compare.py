@@ -140,6 +140,7 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours", *,
     md = "\n".join(s for s in (md_v, md_t, md_w) if s)
     trained_on = machines(results)
     md += "\n" + machines_markdown(trained_on)
+    md += unseen_markdown(results)
     if diffs:
         md += "\n" + ci_table(diffs, ours, resampled)
     means = {m: mv.get(m, {}) | mt.get(m, {}) | mw.get(m, {}) for m in by_method}
@@ -160,6 +161,17 @@ def table(results: list[dict], diffs: dict | None = None, ours: str = "ours", *,
     if diffs:
         data["differences"] = {"method": ours, "level": 0.95, "rows": diffs}
     return md, data
+
+
+def unseen_markdown(results: list[dict]) -> str:
+    """Where the unseen sketches came from, when not from each garment's own dataset (`eval --unseen-from`)."""
+    folders = sorted({r["unseen_from"] for r in results if r.get("unseen_from")})
+    if not folders:
+        return ""
+    counts = sorted({len(r.get("unseen_sketches") or []) for r in results})
+    n = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+    return (f"\nUnseen sketches (FB-SIFID unseen): {n} per run, from the dataset folder "
+            f"{', '.join(f'`{f}`' for f in folders)} (`eval --unseen-from`), not each garment's own.\n")
 
 
 def machines(results: list[dict]) -> dict:
@@ -376,17 +388,20 @@ def report(evals: list[Evaluation], ours: str, *, n_boot: int = 2000,
 
 
 def compare(runs: list[Path | RunSpec], out_dir: Path, which: str = "best", *, ours: str = "ours",
-            n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None) -> tuple[str, dict]:
+            n_boot: int = 2000, cache: bool = True, labels: dict[RunSpec, str] | None = None,
+            unseen_from: Path | None = None) -> tuple[str, dict]:
     """Score `runs` (reusing each run's stored scores when nothing they depend on changed: trainer.eval_cache),
     write the tables, the target's picture (trainer.target_plot) and the sheets to `out_dir`. `labels`: run -> the
-    name its rows get instead of its method."""
+    name its rows get instead of its method. `unseen_from`: a dataset folder whose sketches are the unseen ones,
+    instead of each garment's own dataset's."""
     labels = labels or {}
     runs = [_spec(r) for r in runs]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = []
     for r in runs:
-        e = eval_cache.scored(r.path, which, r.weights, cache=cache, relief=r.relief, mirrors=r.mirrors)
+        e = eval_cache.scored(r.path, which, r.weights, cache=cache, relief=r.relief, mirrors=r.mirrors,
+                              unseen_from=unseen_from)
         e.result["run"] = str(r)
         name = labels.get(r, _default_label(e.result["method"], r))
         if name != e.result["method"]:
@@ -408,7 +423,7 @@ def write_eval(run_dir: Path, result: dict, json_out: Path | None = None) -> Non
     run_dir = Path(run_dir)
     tags = eval_cache.variant(result.get("weights", "average"), (result.get("relief") or {}).get("rule", "none"),
                               result.get("mirrors", "none"))
-    suffix = "".join(f"-{t}" for t in tags)
+    suffix = "".join(f"-{t}" for t in tags) + eval_cache.unseen_tag(result.get("unseen_from"))
     (run_dir / "eval").mkdir(parents=True, exist_ok=True)
     (run_dir / "eval" / f"metrics{suffix}.json").write_text(json.dumps(result, indent=2))
     (run_dir / "eval" / f"summary{suffix}.md").write_text(table([result])[0])

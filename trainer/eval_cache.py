@@ -3,7 +3,8 @@ its raw weights), so `eval --compare` after one more run finishes re-scores only
 run on a CPU: unseen sketches, five reference rows).
 
 The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
-size, modification time: the unseen sketches are the other garments) and the scoring code: every module of
+size, modification time: the unseen sketches are the other garments) and in the folder the unseen sketches come from
+when one is named (`eval --unseen-from`, scored apart as compare-<which>-unseen_<folder>), and the scoring code: every module of
 `trainer/` and `kiosk/contract/` that scoring imports, directly or not, found statically (function-level imports
 included), so an edit to the training side (loop, methods, losses) does not re-score every run, nor does one to the
 tables built from the scores (trainer.compare: wording, intervals, the target's verdict). Any change to the scoring
@@ -75,8 +76,17 @@ def _code_hash(files: Iterable[Path] | None = None, base: Path = ROOT) -> str:
     return h.hexdigest()
 
 
+def _hash_folder(h, data: Path) -> None:
+    """Every garment file under `data` by name, size and modification time."""
+    for d in sorted(p for p in data.iterdir() if p.is_dir()):
+        for f in sorted(d.rglob("*")):
+            if f.is_file():
+                st = f.stat()
+                h.update(f"{f.relative_to(data).as_posix()} {st.st_size} {st.st_mtime_ns}".encode())
+
+
 def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str = "none",
-              mirrors: str = "none") -> str:
+              mirrors: str = "none", unseen_from: Path | None = None) -> str:
     run_dir = Path(run_dir)
     h = hashlib.sha256(f"v{VERSION} {which}".encode())
     if weights != "average":   # raw weights are scored apart from the average (stored as compare-<which>-raw)
@@ -90,12 +100,10 @@ def cache_key(run_dir: Path, which: str, weights: str = "average", relief: str =
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     garment = Path(read_checkpoint(run_dir, which)["config"]["garment"])
-    data = garment.parent
-    for d in sorted(p for p in data.iterdir() if p.is_dir()):
-        for f in sorted(d.rglob("*")):
-            if f.is_file():
-                st = f.stat()
-                h.update(f"{f.relative_to(data).as_posix()} {st.st_size} {st.st_mtime_ns}".encode())
+    _hash_folder(h, garment.parent)
+    if unseen_from is not None:   # the unseen sketches come from there (trainer.evaluate.find_unseen)
+        h.update(b" unseen_from")
+        _hash_folder(h, Path(unseen_from))
     h.update(_code_hash().encode())
     return h.hexdigest()
 
@@ -106,9 +114,14 @@ def variant(weights: str = "average", relief: str = "none", mirrors: str = "none
     return [t for t, plain in ((weights, "average"), (mirrors, "none"), (relief, "none")) if t != plain]
 
 
+def unseen_tag(unseen_from: Path | str | None) -> str:
+    """What files scored on another folder's unseen sketches carry, so they never replace the plain scores."""
+    return "" if unseen_from is None else f"-unseen_{Path(unseen_from).name}"
+
+
 def _paths(run_dir: Path, which: str, weights: str = "average", relief: str = "none",
-           mirrors: str = "none") -> tuple[Path, Path]:
-    name = f"compare-{which}" + "".join(f"-{t}" for t in variant(weights, relief, mirrors))
+           mirrors: str = "none", unseen_from: Path | None = None) -> tuple[Path, Path]:
+    name = f"compare-{which}" + "".join(f"-{t}" for t in variant(weights, relief, mirrors)) + unseen_tag(unseen_from)
     base = Path(run_dir) / "eval" / name
     return base.with_suffix(".json"), base.with_suffix(".npz")
 
@@ -126,8 +139,8 @@ def _unpack(arrays, prefix: str) -> dict[str, Units]:
 
 
 def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "average", relief: str = "none",
-         mirrors: str = "none") -> None:
-    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors)
+         mirrors: str = "none", unseen_from: Path | None = None) -> None:
+    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors, unseen_from)
     meta_path.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, np.ndarray] = {}
     _pack(arrays, "run", e.units)
@@ -138,9 +151,9 @@ def save(run_dir: Path, which: str, key: str, e: Evaluation, weights: str = "ave
 
 
 def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: str = "none",
-         mirrors: str = "none") -> Evaluation | None:
+         mirrors: str = "none", unseen_from: Path | None = None) -> Evaluation | None:
     """The stored scores if their key is `key`; None (re-score) when missing, stale or unreadable."""
-    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors)
+    meta_path, arr_path = _paths(run_dir, which, weights, relief, mirrors, unseen_from)
     if not (meta_path.is_file() and arr_path.is_file()):
         return None
     try:
@@ -156,16 +169,17 @@ def load(run_dir: Path, which: str, key: str, weights: str = "average", relief: 
 
 
 def scored(run_dir: Path, which: str, weights: str = "average", *, cache: bool = True,
-           relief: str = "none", mirrors: str = "none") -> Evaluation:
+           relief: str = "none", mirrors: str = "none", unseen_from: Path | None = None) -> Evaluation:
     """The run's scores: stored ones while their key holds, else scored now (and stored unless `cache` is off).
     Scoring is called from here only, so the tables built from these scores (trainer.compare) can change wording
     without re-scoring every run."""
-    key = cache_key(run_dir, which, weights, relief, mirrors) if cache else None
-    e = load(run_dir, which, key, weights, relief, mirrors) if cache else None
+    key = cache_key(run_dir, which, weights, relief, mirrors, unseen_from) if cache else None
+    e = load(run_dir, which, key, weights, relief, mirrors, unseen_from) if cache else None
     if e is not None:
         log.info("eval: %s unchanged since it was scored; its stored scores are used", run_dir)
         return e
-    e = evaluate(run_dir, which, swap=False, weights=weights, relief=relief, mirrors=mirrors)
+    e = evaluate(run_dir, which, swap=False, weights=weights, relief=relief, mirrors=mirrors,
+                 unseen_from=unseen_from)
     if cache:
-        save(run_dir, which, key, e, weights, relief, mirrors)
+        save(run_dir, which, key, e, weights, relief, mirrors, unseen_from)
     return e

@@ -47,6 +47,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
+    p.add_argument("--unseen-from", type=Path, metavar="DATA",
+                   help="take the unseen sketches (FB-SIFID unseen) from this dataset folder, every garment there "
+                        "but one of the run's name, instead of the run's own dataset: more sketches, a narrower "
+                        "interval (e.g. a larger set made by `vtkiosk data synth --garments 24` with the same seed "
+                        "and frame); scored and stored apart from the plain scores")
     p.add_argument("--rescore", action="store_true",
                    help="--compare: score every run again instead of reusing the scores stored beside it "
                         "(RUN/eval/compare-<which>.*; reused only when checkpoint, data and scoring code are unchanged)")
@@ -68,6 +73,15 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     if args.garments is not None and args.pool is None:
         parser.error("--garments keeps garments of a pooled table; it goes with --pool "
                      "(with --compare, name the runs)")
+    if args.unseen_from is not None:
+        if args.pool is not None:
+            parser.error("--unseen-from scores runs; a pooled table has its runs' scores already "
+                         "(score each table with it, then pool)")
+        from trainer.data.touchclothing import DatasetError, find_garments
+        try:
+            find_garments(args.unseen_from)
+        except DatasetError as exc:
+            parser.error(f"--unseen-from: {exc}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if args.pool is not None:
         from trainer.pool import PoolError, pool
@@ -93,7 +107,7 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
         except ValueError as exc:
             parser.error(str(exc))
         result = evaluate_run(spec.path, args.which, swap=not args.no_swap, weights=spec.weights,
-                              relief=spec.relief, mirrors=spec.mirrors)
+                              relief=spec.relief, mirrors=spec.mirrors, unseen_from=args.unseen_from)
         write_eval(spec.path, result, args.json)
         print(json.dumps(result, indent=2))
         return 0
@@ -103,7 +117,7 @@ def main(argv: list[str], prog: str = "vtkiosk eval") -> int:
     except ValueError as exc:
         parser.error(str(exc))
     md, data = compare(runs, args.out, args.which, ours=args.ours, n_boot=args.bootstrap, cache=not args.rescore,
-                       labels=labels)
+                       labels=labels, unseen_from=args.unseen_from)
     if args.json is not None:
         args.json.write_text(json.dumps(data, indent=2))
     print(md)

@@ -123,12 +123,17 @@ def near_strokes(sketch: np.ndarray, pitch_mm: float | None) -> np.ndarray | Non
     return d <= LINE_REACH_MM / pitch_mm
 
 
-def find_unseen(g: Garment, side: int) -> list[Unseen]:
-    """Every other sketch in the garment's dataset folder (other garments, edited sketches) that fits `side`."""
-    try:
-        others = [d for d in find_garments(g.root.parent) if d.resolve() != g.root.resolve()]
-    except Exception:  # noqa: BLE001 - a garment folder given directly has no siblings
-        others = []
+def find_unseen(g: Garment, side: int, source: Path | None = None) -> list[Unseen]:
+    """Every other sketch in the garment's dataset folder (other garments, edited sketches) that fits `side`. With
+    `source`, the sketches of that dataset folder instead, every garment there but one of this garment's name: more
+    sketches than the garment's own dataset holds, so the texture statistic's interval rests on more units."""
+    if source is not None:   # a missing or empty folder is the caller's error, so it raises
+        others = [d for d in find_garments(source) if d.name != g.root.name and d.resolve() != g.root.resolve()]
+    else:
+        try:
+            others = [d for d in find_garments(g.root.parent) if d.resolve() != g.root.resolve()]
+        except Exception:  # noqa: BLE001 - a garment folder given directly has no siblings
+            others = []
     out = []
     for d in others:
         try:
@@ -303,7 +308,7 @@ class Prediction:
     """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
     def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average",
-                 relief: str = "none", mirrors: str = "none"):
+                 relief: str = "none", mirrors: str = "none", unseen_from: Path | None = None):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which, weights)
         if mirrors != "none":  # trainer/models/mirror_average.py: before the calibration, which fits what it returns
@@ -326,7 +331,7 @@ class Prediction:
             else:
                 self.net, self.relief = ReliefGain(self.net, fit.gain).eval(), fit.as_dict()
         if unseen:
-            self.ctx.unseen = find_unseen(g, side)
+            self.ctx.unseen = find_unseen(g, side, unseen_from)
         with torch.no_grad():
             self.vis, self.tac = self.net(self.ctx.sketch, self.ctx.mask)
             self.unseen = [self.net(u.sketch, u.mask) for u in self.ctx.unseen]
@@ -350,14 +355,18 @@ class Evaluation:
 
 
 def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True,
-             weights: str = "average", relief: str = "none", mirrors: str = "none") -> Evaluation:
-    p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief, mirrors=mirrors)
+             weights: str = "average", relief: str = "none", mirrors: str = "none",
+             unseen_from: Path | None = None) -> Evaluation:
+    p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief, mirrors=mirrors,
+                   unseen_from=unseen_from)
     ctx = p.ctx
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
                  "seed": p.seed, "checkpoint": which, "weights": weights,
                  "perceptual": (p.info.get("info") or {}).get("perceptual"), "machines": p.info.get("machines"),
                  "unseen_sketches": [{"name": u.name, "kind": u.kind} for u in ctx.unseen]}
+    if unseen_from is not None:   # the folder's name only: a table must not carry this machine's paths
+        out["unseen_from"] = Path(unseen_from).name
     if mirrors != "none":
         out["mirrors"] = mirrors
     if p.relief is not None:
@@ -381,8 +390,9 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
 
 
 def evaluate_run(run_dir: Path, which: str = "best", *, swap: bool = True, weights: str = "average",
-                 relief: str = "none", mirrors: str = "none") -> dict:
-    return evaluate(run_dir, which, swap=swap, weights=weights, relief=relief, mirrors=mirrors).result
+                 relief: str = "none", mirrors: str = "none", unseen_from: Path | None = None) -> dict:
+    return evaluate(run_dir, which, swap=swap, weights=weights, relief=relief, mirrors=mirrors,
+                    unseen_from=unseen_from).result
 
 
 def swap_grid(p: Prediction) -> Path | None:

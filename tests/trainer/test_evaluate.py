@@ -373,6 +373,60 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert "--bootstrap must be at least 100" in capsys.readouterr().err
 
 
+def test_unseen_sketches_from_a_larger_dataset_folder(synth, tmp_path, capsys, monkeypatch):
+    """`eval --unseen-from`: the texture statistic on another folder's sketches (every garment there but the run's
+    own), one unit each, scored and stored apart from the plain scores, refused when the folder has no garments."""
+    big = tmp_path / "big4"   # the same seed and frame: its first two garments are the fixture's own
+    generate_dataset(big, garments=4, seed=0, frame=(192, 144), progress=False, profile="easy")
+    g = load_garment(synth / "singleskit_DenimShorts_padded_270_x1")
+    names = [u.name for u in find_unseen(g, 256, big)]
+    assert len(names) == 3 and g.name not in names and "singleskit_CorduroyTrousers_padded_270_x1" in names
+    cfg = load_config("tiny", method="ours", overrides=["train.steps=1", "train.threads=1"])
+    run = tmp_path / "run"
+    Trainer(cfg, g.root, run).run()
+    out = tmp_path / "cmp"
+    assert vtkiosk(["eval", "--compare", str(run), "--out", str(out), "--bootstrap", "200",
+                    "--unseen-from", str(big)]) == 0
+    data = json.loads((out / "compare.json").read_text())
+    r = data["runs"][0]
+    assert r["unseen_from"] == "big4" and sorted(u["name"] for u in r["unseen_sketches"]) == sorted(names)
+    assert data["differences"]["rows"]["flat"]["full_fbsifid_unseen"]["units"] == 3
+    assert "Unseen sketches (FB-SIFID unseen): 3 per run, from the dataset folder `big4`" in \
+        (out / "compare.md").read_text()
+    assert str(tmp_path) not in (out / "compare.json").read_text().replace(str(run), "")
+    assert (run / "eval" / "compare-best-unseen_big4.json").is_file()
+    assert not (run / "eval" / "compare-best.json").exists()   # the plain scores are not these
+    assert vtkiosk(["eval", "--compare", str(run), "--out", str(tmp_path / "plain"), "--bootstrap", "200"]) == 0
+    plain = json.loads((tmp_path / "plain" / "compare.json").read_text())["runs"][0]
+    assert len(plain["unseen_sketches"]) == 1 and "unseen_from" not in plain
+    assert plain["full_fbsifid_unseen"] != pytest.approx(r["full_fbsifid_unseen"])
+    assert vtkiosk(["eval", "--run", str(run), "--no-swap", "--unseen-from", str(big)]) == 0
+    assert (run / "eval" / "metrics-unseen_big4.json").is_file()
+    assert "eval_unseen_big4" in json.loads((run / "metrics.json").read_text())
+    import trainer.eval_cache as cache_mod
+
+    def refuse(*a, **k):
+        raise AssertionError("re-scored")
+    monkeypatch.setattr(cache_mod, "evaluate", refuse)
+    args = ["eval", "--compare", str(run), "--out", str(tmp_path / "again"), "--bootstrap", "200",
+            "--unseen-from", str(big)]
+    assert vtkiosk(args) == 0                       # stored scores reused while the folder is unchanged
+    sk = next(p for p in sorted(big.rglob("*.png")) if g.root.name not in p.parts)
+    sk.write_bytes(sk.read_bytes() + b"\0")        # a changed unseen sketch scores again
+    with pytest.raises(AssertionError, match="re-scored"):
+        vtkiosk(args)
+    capsys.readouterr()
+    for bad, msg in (([str(tmp_path / "nowhere")], "no such dataset folder"),
+                     ([str(tmp_path / "run")], "no garment folders")):
+        with pytest.raises(SystemExit):
+            vtkiosk(["eval", "--compare", str(run), "--unseen-from", *bad])
+        err = capsys.readouterr().err
+        assert "--unseen-from" in err and msg in err
+    with pytest.raises(SystemExit):
+        vtkiosk(["eval", "--pool", str(out / "compare.json"), "--unseen-from", str(big)])
+    assert "a pooled table has its runs' scores already" in capsys.readouterr().err
+
+
 def test_labelled_runs_parse():
     from trainer.compare import RunSpec, parse_labelled
     runs, labels = parse_labelled(["runs/a/ours", "ours-r1-10=runs/b/r1", "x=y=z", "runs/a/ours@raw", "e=runs/c@raw"])
@@ -386,7 +440,7 @@ def test_labelled_runs_parse():
     for bad in ("=runs/a", "label="):
         with pytest.raises(ValueError, match="LABEL=RUN"):
             parse_labelled([bad])
-    with pytest.raises(ValueError, match="takes average, raw, probe \(weights\), rms"):
+    with pytest.raises(ValueError, match=r"takes average, raw, probe \(weights\), rms"):
         parse_labelled(["runs/a@ema"])
     with pytest.raises(ValueError, match="given twice"):
         parse_labelled(["runs/a", "x=runs/a"])
