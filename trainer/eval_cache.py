@@ -4,11 +4,11 @@ run on a CPU: unseen sketches, five reference rows).
 
 The key is what the scores depend on: the checkpoint's bytes, every garment file in the run's dataset folder (name,
 size, modification time: the unseen sketches are the other garments) and in the folder the unseen sketches come from
-when one is named (`eval --unseen-from`, scored apart as compare-<which>-unseen_<folder>), and the scoring code: every module of
-`trainer/` and `kiosk/contract/` that scoring imports, directly or not, found statically (function-level imports
-included), so an edit to the training side (loop, methods, losses) does not re-score every run, nor does one to the
-tables built from the scores (trainer.compare: wording, intervals, the target's verdict). Any change to the scoring
-code re-scores. Stored as JSON and arrays, never pickled: a run folder may come from elsewhere.
+when one is named (`eval --unseen-from`, scored apart as compare-<which>-unseen_<folder>), and the scoring code:
+every module of `trainer/` and `kiosk/contract/` that scoring imports, directly or not, found statically
+(function-level imports included), so an edit to the training side (loop, methods, losses) does not re-score every
+run, nor does one to the tables built from the scores (trainer.compare: wording, intervals, the target's verdict). Any
+change to the scoring code re-scores. Stored as JSON and arrays, never pickled: a run folder may come from elsewhere.
 """
 from __future__ import annotations
 

@@ -128,7 +128,7 @@ def find_unseen(g: Garment, side: int, source: Path | None = None) -> list[Unsee
     `source`, the sketches of that dataset folder instead, every garment there but one of this garment's name: more
     sketches than the garment's own dataset holds, so the texture statistic's interval rests on more units."""
     if source is not None:   # a missing or empty folder is the caller's error, so it raises
-        others = [d for d in find_garments(source) if d.name != g.root.name and d.resolve() != g.root.resolve()]
+        others = [d for d in find_garments(source) if d.name != g.root.name]
     else:
         try:
             others = [d for d in find_garments(g.root.parent) if d.resolve() != g.root.resolve()]
