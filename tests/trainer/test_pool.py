@@ -173,10 +173,13 @@ def test_a_missing_table_is_named(tmp_path):
         load_runs([tmp_path / "missing.json"])
 
 
-def test_pooling_the_committed_run_5_table_gives_its_point_estimates(tmp_path):
+@pytest.mark.parametrize("table, ours", [(RUN5, "ours")] + [
+    (ROOT / f"docs/compare_1k/mirrors/{t}/compare.json", "txr-lift")
+    for t in ("blind_cd", "blind_dn", "blind_kn", "blind_ss", "blind_cd_cpu", "blind_cd_cpu_u23")])
+def test_pooling_a_committed_table_gives_its_point_estimates(tmp_path, table, ours):
     """The stored runs' scores reproduce the hierarchical table's differences exactly; only intervals differ."""
-    stored = json.loads(RUN5.read_text())
-    _, data = pool([RUN5], tmp_path / "out", n_boot=200)
+    stored = json.loads(table.read_text())
+    _, data = pool([table], tmp_path / "out", n_boot=200, ours=ours)
     for x, row in stored["differences"]["rows"].items():
         for k, d in row.items():
             assert data["differences"]["rows"][x][k]["diff"] == pytest.approx(d["diff"], rel=1e-9, abs=1e-12), (x, k)
