@@ -176,7 +176,7 @@ def test_a_missing_table_is_named(tmp_path):
 @pytest.mark.parametrize("table, ours", [(RUN5, "ours")] + [
     (ROOT / f"docs/compare_1k/mirrors/{t}/compare.json", "txr-lift")
     for t in ("blind_cd", "blind_dn", "blind_kn", "blind_ss", "blind_cd_cpu", "blind_cd_cpu_u23", "blind2_kn",
-              "blind2_ss", "blind2_ct")])
+              "blind2_ss", "blind2_ct", "blind2_dn")])
 def test_pooling_a_committed_table_gives_its_point_estimates(tmp_path, table, ours):
     """The stored runs' scores reproduce the hierarchical table's differences exactly; only intervals differ."""
     stored = json.loads(table.read_text())
