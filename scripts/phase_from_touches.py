@@ -7,11 +7,13 @@ the touches once the `shape-oracle` is taken away (the recorded slopes, sensor b
 model sees them) is fitted with plane waves in frame coordinates (orthogonal matching pursuit: each wave's
 frequency from the touches' zero-padded spectrum, refined by least squares, then every amplitude refitted), and the
 fitted weave is scored off the touches on the evaluation crop, alone and on top of the `shape-oracle`. A plane wave
-is the most a frame-locked positional feature gives a network; the fitted rows are what such a model would score
-with the fabric's folds and seams known exactly and only the weave's phase learnt from its touches.
+(with its harmonics: a ridge profile) is what a frame-locked positional feature most directly gives a network; the
+fitted rows are what such a model would score with the fabric's folds and seams known exactly and only the weave's
+place learnt from its touches. `--samples` fits the truth instead, at the touches' pixels or everywhere: ceilings
+that separate what the touches say from what the wave family can hold.
 
     .venv/bin/python scripts/phase_from_touches.py data/hard640 KnitJacket SatinShirt CorduroyTrousers DenimShorts \
-        --waves 4 --json docs/compare_1k/phase_from_touches.json
+        --waves 3 --samples touches --json docs/compare_1k/phase_from_touches/touches.json
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from trainer.metrics import full_field_scores  # noqa: E402
 from trainer.references import exported_head, weave_period_px  # noqa: E402
 
 FIGURES = ("full_angle_deg_outside", "full_angle_deg_outside_lines", "full_angle_deg_outside_open")
-MIN_PERIOD_PX = 2.5   # shorter waves than this are below what the sensor resolves at the synthetic pitch
+MIN_PERIOD_PX = 2.5   # near the pixel grid's 2 px limit the sensor's blur leaves nothing to place
 REFINE_ROUNDS = 4     # each shrinks the local frequency grid fourfold
 PAD = 2               # spectrum zero-padding: frequency steps of 2 pi / (PAD P) rad/px
 
@@ -87,7 +89,8 @@ def _design(k: np.ndarray, x: np.ndarray, y: np.ndarray, harmonics: int = 1) -> 
 
 def fit_waves(x, y, gx, gy, size: int, waves: int, harmonics: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
     """Greedy plane-wave fits of the slopes (gx, gy) sampled at (x, y): after each new wave every amplitude is
-    refitted (orthogonal matching pursuit). Returns the wave vectors (n, 2) after 1..waves waves."""
+    refitted (orthogonal matching pursuit). Returns, after each of 1..waves waves, the wave vectors (n, 2) in
+    rad/px and their amplitudes (sin, cos per wave and harmonic, in `_design`'s column order)."""
     n = PAD * size
     k1 = 2 * np.pi * np.fft.fftfreq(n)
     kx, ky = np.meshgrid(k1, k1)
@@ -194,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", type=Path, help="dataset folder (e.g. data/hard640)")
     ap.add_argument("garments", nargs="+", help="garment names (e.g. KnitJacket)")
-    ap.add_argument("--waves", type=int, default=4, help="plane waves to fit (rows for 1..N)")
+    ap.add_argument("--waves", type=int, default=3, help="plane waves to fit (rows for 1..N)")
     ap.add_argument("--harmonics", type=int, default=3, help="harmonics per wave (a ridge profile, 1 = sinusoid)")
     ap.add_argument("--samples", choices=SAMPLES, default="touches",
                     help="what the waves are fitted to (touches: as a model sees them; the others are ceilings)")
@@ -205,8 +208,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--waves and --harmonics must be at least 1")
     results = [garment_rows(a.data, n, a.waves, a.crop, a.harmonics, a.samples) for n in a.garments]
     for res in results:
-        print(f"\n{res['garment']} [{res['samples']}] ({res['touches']} touches, {res['touch_pixels']} pixels fitted; waves: "
-              + ", ".join(f"{w['period_px']:.2f} px at {w['angle_deg']:.1f} deg" for w in res["waves"]) + ")")
+        found = ", ".join(f"{w['period_px']:.2f} px at {w['angle_deg']:.1f} deg" for w in res["waves"])
+        print(f"\n{res['garment']} [{res['samples']}] ({res['touches']} touches, {res['touch_pixels']} pixels "
+              f"fitted; waves: {found})")
         print(f"{'row':26s} {'outside':>8s} {'by a line':>9s} {'open':>7s} {'gap':>6s} {'weave R2':>9s}")
         for name, r in res["rows"].items():
             gap = r["gap_closed_outside"]
@@ -214,8 +218,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:26s} {r[FIGURES[0]]:8.3f} {r[FIGURES[1]]:9.3f} {r[FIGURES[2]]:7.3f} "
                   f"{'' if gap is None else f'{100 * gap:5.0f}%'} {'' if r2 is None else f'{r2:9.2f}'}")
     if a.json:
-        a.json.write_text(json.dumps({"data": a.data.name, "samples": a.samples, "waves": a.waves, "harmonics": a.harmonics,
-                                      "garments": results}, indent=1) + "\n")
+        a.json.write_text(json.dumps({"data": a.data.name, "samples": a.samples, "waves": a.waves,
+                                      "harmonics": a.harmonics, "garments": results}, indent=1) + "\n")
     return 0
 
 
