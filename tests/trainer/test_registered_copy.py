@@ -1,0 +1,71 @@
+"""scripts/registered_copy.py: touches moved back to where they were pressed match the truth there; inputs
+without a recorded registration are refused."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from trainer.data.synthetic import generate_dataset
+from trainer.data.touchclothing import load_garment
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "registered_copy.py"
+
+
+@pytest.fixture(scope="module")
+def rc():
+    spec = importlib.util.spec_from_file_location("registered_copy", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def hard(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hard")
+    generate_dataset(root, garments=1, seed=3, frame=(320, 240), progress=False, profile="hard")
+    return root
+
+
+def _touch_error(g) -> float:
+    """Mean |recorded gx - truth gx| over every touch's contact pixels."""
+    ft, errs = g.full_tactile, []
+    for touches in g.touches.values():
+        for t in touches:
+            r = t.rect
+            errs.append(np.abs(t.gx[t.contact] - ft.gx[r.y:r.y + r.h, r.x:r.x + r.w][t.contact]))
+    return float(np.concatenate(errs).mean())
+
+
+def test_registered_copy_moves_every_touch_back(rc, hard, tmp_path):
+    src = next(hard.glob("singleskit_*"))
+    name = src.name.split("_")[1]
+    offsets = yaml.safe_load((src / "synthetic.yaml").read_text())["realism"]["registration_offsets_px"]
+    assert any(o != [0, 0] for o in offsets), "the fixture should have some registration error to undo"
+    dst = rc.registered_copy(hard, name, tmp_path)
+    before, after = load_garment(src), load_garment(dst)
+    for split, touches in before.touches.items():
+        for t0, t1 in zip(touches, after.touches[split]):
+            dx, dy = offsets[int(t0.name.split("_")[-2]) - 1]
+            assert (t1.rect.x, t1.rect.y) == (t0.rect.x - dx, t0.rect.y - dy)
+            assert np.array_equal(t0.gx, t1.gx) and np.array_equal(t0.contact, t1.contact)
+    # the recorded slopes now sit on the truth they were measured from (only the sensor noise is left)
+    assert _touch_error(after) < 0.5 * _touch_error(before)
+    assert np.array_equal(before.sketch, after.sketch) and np.array_equal(before.full_tactile.gx,
+                                                                          after.full_tactile.gx)
+
+
+def test_registered_copy_refuses_what_it_cannot_register(rc, hard, tmp_path):
+    with pytest.raises(SystemExit, match="no garment Nothing"):
+        rc.registered_copy(hard, "Nothing", tmp_path)
+    src = next(hard.glob("singleskit_*"))
+    name = src.name.split("_")[1]
+    with pytest.raises(SystemExit, match="overwrite its source"):
+        rc.registered_copy(hard, name, hard)
+    easy = tmp_path / "easy"
+    generate_dataset(easy, garments=1, seed=3, frame=(192, 144), progress=False, profile="easy")
+    with pytest.raises(SystemExit, match="no registration offsets"):
+        rc.registered_copy(easy, next(easy.glob("singleskit_*")).name.split("_")[1], tmp_path / "out")
