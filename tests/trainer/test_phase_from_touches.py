@@ -2,24 +2,21 @@
 reference rows on a garment the project generates."""
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.scripts_module import load_script
 from trainer.data.synthetic import generate_dataset
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "phase_from_touches.py"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "compare_1k"
 
 
 @pytest.fixture(scope="module")
 def pft():
-    spec = importlib.util.spec_from_file_location("phase_from_touches", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("phase_from_touches")
 
 
 def _islands(rng, size, n=6, side=20):
@@ -83,16 +80,9 @@ def test_script_refuses_unknown_garment_and_bad_counts(pft, tmp_path):
         pft.main([str(tmp_path), "Nothing", "--waves", "0"])
 
 
-PLOT = Path(__file__).resolve().parents[2] / "scripts" / "plot_gap_budget.py"
-DOCS = Path(__file__).resolve().parents[2] / "docs" / "compare_1k"
-
-
 @pytest.fixture(scope="module")
 def budget():
-    spec = importlib.util.spec_from_file_location("plot_gap_budget", PLOT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("plot_gap_budget")
 
 
 def test_gap_budget_from_the_committed_tables(budget, tmp_path, capsys):

@@ -2,25 +2,19 @@
 without a recorded registration are refused."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from tests.scripts_module import load_script
 from trainer.data.synthetic import generate_dataset
 from trainer.data.touchclothing import load_garment
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "registered_copy.py"
 
 
 @pytest.fixture(scope="module")
 def rc():
-    spec = importlib.util.spec_from_file_location("registered_copy", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("registered_copy")
 
 
 @pytest.fixture(scope="module")
