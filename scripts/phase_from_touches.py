@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from trainer.augment import eval_crop_origin, resolve_crop  # noqa: E402
-from trainer.data.touchclothing import friction_scale, load_garment  # noqa: E402
+from trainer.data.touchclothing import DatasetError, find_garment, friction_scale, load_garment  # noqa: E402
 from trainer.evaluate import Context  # noqa: E402
 from trainer.metrics import full_field_scores  # noqa: E402
 from trainer.references import exported_head, weave_period_px  # noqa: E402
@@ -149,10 +149,10 @@ def render(ks: np.ndarray, coef: np.ndarray, shape: tuple[int, int], harmonics: 
 
 def garment_rows(data: Path, name: str, waves: int, crop: int, harmonics: int = 1,
                  source: str = "touches") -> dict:
-    matches = sorted(data.glob(f"singleskit_{name}_padded_*"))
-    if not matches:
-        raise SystemExit(f"no garment {name} in {data}")
-    g = load_garment(matches[0])
+    try:
+        g = load_garment(find_garment(data, name))
+    except DatasetError as exc:
+        raise SystemExit(f"no garment {name} in {data}: {exc}") from exc
     side = resolve_crop(crop, g.mask)
     ctx = Context(g, side, eval_crop_origin(g.mask, side), float(friction_scale(g)))
     truth, o, split = ctx.truth(), ctx.oracle(), ctx.weave_oracles()

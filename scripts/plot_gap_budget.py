@@ -15,7 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from trainer.data.touchclothing import FOLDER_RE  # noqa: E402
 
 GAP = "full_angle_deg_outside"
 TARGET = 0.6
@@ -25,9 +30,9 @@ SOURCES = (("touches", "shape-oracle + weave placed from the recorded touches"),
 
 
 def _short(garment: str) -> str:
-    """singleskit_KnitJacket_padded_900_x1 -> KnitJacket."""
-    parts = garment.split("_")
-    return parts[1] if len(parts) > 2 and parts[0] == "singleskit" else garment
+    """singleskit_KnitJacket_padded_900_x1 -> KnitJacket (the material); other names unchanged."""
+    m = FOLDER_RE.match(garment)
+    return m["material"] if m else garment
 
 
 def _mean(xs: list[float]) -> float | None:

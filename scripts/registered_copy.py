@@ -18,14 +18,18 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from trainer.data.touchclothing import DatasetError, find_garment  # noqa: E402
+
 SPLITS = ("trainT", "valT", "testT")
 
 
 def registered_copy(data: Path, name: str, out: Path) -> Path:
-    matches = sorted(data.glob(f"singleskit_{name}_padded_*"))
-    if not matches:
-        raise SystemExit(f"no garment {name} in {data}")
-    src = matches[0]
+    try:
+        src = find_garment(data, name)
+    except DatasetError as exc:
+        raise SystemExit(f"no garment {name} in {data}: {exc}") from exc
     meta_path = src / "synthetic.yaml"
     if not meta_path.is_file():
         raise SystemExit(f"{src.name}: not a synthetic garment (no synthetic.yaml): its registration is unknown")

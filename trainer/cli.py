@@ -37,7 +37,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def pick_garments(args) -> list[Path]:
-    from trainer.data.touchclothing import DatasetError, find_garments, parse_folder_name
+    from trainer.data.touchclothing import DatasetError, find_garment, find_garments
     found = find_garments(args.data)
     if args.all:
         return found
@@ -49,12 +49,7 @@ def pick_garments(args) -> list[Path]:
         if len(found) == 1:
             return found
         raise DatasetError(f"{args.data} holds {len(found)} garments; name one with --garment or pass --all")
-    from kiosk.contract.garment import same_garment
-    for g in found:
-        if same_garment(args.garment, g.name):       # DenimShorts, denim-shorts or the folder name
-            return [g]
-    names = ", ".join(parse_folder_name(g.name)[0] for g in found)
-    raise DatasetError(f"no garment {args.garment!r} in {args.data} (have: {names})")
+    return [find_garment(args.data, args.garment)]
 
 
 def main(argv: list[str], prog: str = "vtkiosk train") -> int:

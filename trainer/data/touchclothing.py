@@ -19,6 +19,7 @@ import numpy as np
 
 from trainer.errors import TrainerError
 from kiosk.config import loader
+from kiosk.contract.garment import same_garment
 from kiosk.contract.haptics import calibrate_scale
 
 PUBLISHED_FRAME = (1280, 960)  # camera frame (width, height)
@@ -151,6 +152,16 @@ def find_garments(data_dir: Path) -> list[Path]:
     if not found:
         raise DatasetError(f"{data_dir}: no garment folders (singleskit_<Material>_padded_<P>_x<k>) inside")
     return found
+
+
+def find_garment(data_dir: Path, name: str) -> Path:
+    """The garment folder in `data_dir` that `name` denotes: DenimShorts, denim-shorts or the folder name."""
+    found = find_garments(data_dir)
+    for g in found:
+        if same_garment(name, g.name):
+            return g
+    names = ", ".join(parse_folder_name(g.name)[0] for g in found)
+    raise DatasetError(f"no garment {name!r} in {data_dir} (have: {names})")
 
 
 def _single_image(root: Path, sub: str, required: bool) -> Path | None:
