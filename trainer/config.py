@@ -120,6 +120,9 @@ class LossConfig:
     diffaug: str = field(default="color,translation,cutout", metadata={"empty_ok": True})
     # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
     tactile_texture: float = 0.0
+    # Registration-tolerant touches (trainer/recipe/registration.py): every tactile term sees the generated relief at
+    # the best integer shift within this many px of where each patch was recorded; 0 = at the recorded corner.
+    tactile_shift: int = 0
 
 
 @dataclass(frozen=True)
@@ -253,6 +256,8 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"train.ema_probe_ramp is > 1, or 0 for no probe average; got {cfg.train.ema_probe_ramp}")
     if cfg.train.ema_probe_ramp and not cfg.train.ema:
         raise ConfigError("train.ema_probe_ramp needs train.ema (the probe shares its decay cap)")
+    if not 0 <= cfg.loss.tactile_shift <= 8:
+        raise ConfigError(f"loss.tactile_shift is a shift radius in px, 0..8; got {cfg.loss.tactile_shift}")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
     for key in ("transpose", "flip"):

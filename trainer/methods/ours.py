@@ -7,6 +7,7 @@ the generator loss; the CLIP head has its own optimizer. Ablations switch the fo
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -20,6 +21,7 @@ from trainer.methods.base import Method
 from trainer.models.discriminators import MultiScaleD
 from trainer.models.generator import TwoBranchUNet
 from trainer.recipe.diffaug import DiffAugment
+from trainer.recipe.registration import best_shift_patches
 from trainer.recipe.texture import TextureStatsLoss
 from trainer.sampling import PATCH, Batch, cut
 
@@ -66,19 +68,34 @@ class Ours(Method):
         self.aug_visual = DiffAugment(lc.diffaug, rgb=slice(1, 4), seed=cfg.train.seed)
         self.aug_tactile = DiffAugment(lc.diffaug, rgb=slice(3, 6), seed=cfg.train.seed + 1)
         self.texture = TextureStatsLoss().to(self.device) if lc.tactile_texture > 0 else None
+        self.shift_log: dict[str, float] = {}   # what `touch_patches` picked last (`loss.tactile_shift`)
         self._sync_nets()
         self.info = {"perceptual": self.perceptual.kind, "clip_d": "torchscript" if self.clip.active else "skipped",
                      "losses": {"visual_gan": self.visual_gan, "tactile_gan": self.tactile_gan,
                                 "visual_rec": self.visual_rec, "tactile_rec": self.tactile_rec}}
 
+    def touch_patches(self, batch: Batch, tactile_fake: torch.Tensor) -> torch.Tensor:
+        """The generated relief where each paired touch patch was recorded, or at the best shift within
+        `loss.tactile_shift` px of it (trainer/recipe/registration.py); the picked shifts' mean length is logged."""
+        k = self.cfg.loss.tactile_shift
+        if not k:
+            return cut(tactile_fake, batch.origins)
+        patches, picked = best_shift_patches(tactile_fake, batch.origins, torch.cat([batch.gx, batch.gy], 1),
+                                             batch.contact, k)
+        self.shift_log = {"t_shift_px": float(np.hypot(*picked.T).mean()) if len(picked) else 0.0,
+                          "t_shift_zero": float((picked == 0).all(1).mean()) if len(picked) else 1.0}
+        return patches
+
     # --- inputs of the discriminators ------------------------------------------------------------------------
-    def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor):
+    def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
+                       paired: torch.Tensor | None = None):
         """(real paired, fake paired, fake unpaired) 7-channel patches.
 
         The fake visual patch is detached (paper), the ground-truth crop (`loss.tactile_d_visual: real`), or no
         colour at all for real and fake alike (`none`: zeros in the RGB channels); the
         unpaired contact mask is the object's or a paired patch's (`loss.unpaired_contact`). Both choices decide
-        whether D can separate fakes by something other than their tactile channels.
+        whether D can separate fakes by something other than their tactile channels. `paired` is
+        `touch_patches` of `tactile_fake` when the caller has it.
         """
         lc = self.cfg.loss
         c = batch.contact
@@ -88,7 +105,9 @@ class Ours(Method):
         if lc.tactile_d_visual == "none":   # D sees no colour: no reward for tactile that follows the print
             shown = real_visual = torch.zeros_like(batch.visual)
         real = torch.cat([batch.gx * c, batch.gy * c, sk, cut(real_visual, batch.origins), c], 1)
-        fake = torch.cat([cut(tactile_fake, batch.origins) * c, sk, cut(shown, batch.origins), c], 1)
+        if paired is None:
+            paired = self.touch_patches(batch, tactile_fake)
+        fake = torch.cat([paired * c, sk, cut(shown, batch.origins), c], 1)
         um = cut(batch.mask, batch.unpaired)
         if lc.unpaired_contact == "borrowed" and len(um):
             # paired patches are drawn at random, so taking them in order is a random, seeded pairing
@@ -141,7 +160,7 @@ class Ours(Method):
                 out["v_fm"] = lc.feature_matching * feature_matching(real_o, fake_o)
             if self.clip.active and step >= lc.clip_start * self.cfg.train.steps and lc.clip:
                 out["v_clip"] = lc.clip * self.clip.g_loss(visual_fake)
-        tp = cut(tactile_fake, batch.origins)
+        tp = self.touch_patches(batch, tactile_fake)
         gt = torch.cat([batch.gx, batch.gy], 1)
         if self.tactile_rec:
             out["t_l1"] = lc.tactile_l1 * masked_l1(tp, gt, batch.contact)
@@ -151,7 +170,7 @@ class Ours(Method):
         if self.texture is not None:
             out["t_tex"] = lc.tactile_texture * self.texture(tp, gt, batch.contact)
         if self.tactile_gan and gan:
-            real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake))
+            real_o, fake_o, unpaired_o = self.tactile_d(*self.tactile_inputs(batch, visual_fake, tactile_fake, tp))
             adv = g_loss(fake_o)
             if unpaired_o is not None:
                 adv = (adv + g_loss(unpaired_o)) / 2
@@ -227,4 +246,5 @@ class Ours(Method):
             self._requires_grad(net, True)
         logs.update({k: v.item() for k, v in terms.items()})
         logs["g_total"] = total.item()
+        logs.update(self.shift_log)
         return logs
