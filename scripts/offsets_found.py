@@ -6,7 +6,8 @@ The hard profile records each touch a pixel or two from where it was pressed (sy
 touches should match each touch best where it was pressed: at shift = -offset. This scores that, per touch, for
 each run given, beside two references: `truth` (the full-field truth in place of a model: what the touch itself
 allows, under its sensor's blur and noise) and `recorded` (shift 0 for every touch: right only where the offset is
-0). docs/training.md, "Registration-tolerant touches".
+0). `--split val` or `test` asks the same of touches the model never trained on: whether its relief off the
+training touches is sharp enough to place a touch. docs/training.md, "Registration-tolerant touches".
 
     .venv/bin/python scripts/offsets_found.py data/hard640 SatinShirt runs/s69/SatinShirt/ours-txs-s8 \
         --radius 2 --json docs/compare_1k/offsets_found/SatinShirt.json
@@ -99,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("runs", nargs="*", type=Path, help="run folders trained on this garment")
     ap.add_argument("--radius", type=int, default=2, help="largest shift tried per axis, px (2)")
     ap.add_argument("--which", default="latest", help="checkpoint: latest or best (latest)")
+    ap.add_argument("--split", choices=("train", "val", "test"), default="train",
+                    help="whose touches to place (train: those the model learnt from)")
     ap.add_argument("--json", type=Path, help="write the rows here")
     a = ap.parse_args(argv)
     if not 1 <= a.radius <= 8:
@@ -110,20 +113,21 @@ def main(argv: list[str] | None = None) -> int:
     if g.full_tactile is None:
         raise SystemExit(f"{g.name}: no full-field truth to place the touches against")
     offsets = recorded_offsets(g)
-    found_truth = best_shifts((g.full_tactile.gx, g.full_tactile.gy), (0, 0), g, a.radius)   # the whole frame
+    found_truth = best_shifts((g.full_tactile.gx, g.full_tactile.gy), (0, 0), g, a.radius, a.split)   # whole frame
     rows = {"recorded": score({k: (0, 0) for k in found_truth}, offsets), "truth": score(found_truth, offsets)}
     for run in a.runs:
         relief, run_origin, garment = model_relief(run, a.which)
         if garment.name != g.name:
             raise SystemExit(f"{run}: trained on {garment.name}, not {g.name}")
-        rows[f"{run.parent.name}/{run.name}"] = score(best_shifts(relief, run_origin, g, a.radius), offsets)
-    print(f"{g.name}: training touches placed by the best shift within {a.radius} px")
+        rows[f"{run.parent.name}/{run.name}"] = score(best_shifts(relief, run_origin, g, a.radius, a.split), offsets)
+    print(f"{g.name}: {a.split} touches placed by the best shift within {a.radius} px")
     print(f"{'row':<34} {'touches':>7} {'hits':>5} {'px left':>8} {'px recorded':>11}")
     for name, r in rows.items():
         print(f"{name:<34} {r['touches']:>7} {r['hits']:>5} {r['mean_px_left']:>8.3f} {r['mean_px_recorded']:>11.3f}")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps({"garment": g.name, "radius": a.radius, "which": a.which, "rows": rows},
+        a.json.write_text(json.dumps({"garment": g.name, "split": a.split, "radius": a.radius, "which": a.which,
+                                      "rows": rows},
                                      indent=1) + "\n")
     return 0
 

@@ -40,6 +40,9 @@ def test_the_truth_finds_the_offsets_and_a_run_is_scored_beside_it(of, hard, tmp
     assert truth["mean_px_left"] < 0.5 * recorded["mean_px_recorded"]
     assert recorded["mean_px_left"] == recorded["mean_px_recorded"] > 0
     assert rows[f"{run.parent.name}/run"]["touches"] >= 1
+    assert of.main([str(hard), name, "--split", "test", "--radius", "3", "--json", str(out)]) == 0
+    held_out = json.loads(out.read_text())
+    assert held_out["split"] == "test" and held_out["rows"]["truth"]["touches"] >= 1
 
 
 def test_what_cannot_be_placed_is_refused(of, hard, tmp_path):
