@@ -68,7 +68,7 @@ class Ours(Method):
         self.aug_visual = DiffAugment(lc.diffaug, rgb=slice(1, 4), seed=cfg.train.seed)
         self.aug_tactile = DiffAugment(lc.diffaug, rgb=slice(3, 6), seed=cfg.train.seed + 1)
         self.texture = TextureStatsLoss().to(self.device) if lc.tactile_texture > 0 else None
-        self.shift_log: dict[str, float] = {}   # what `touch_patches` picked last (`loss.tactile_shift`)
+        self.picks: list[np.ndarray] = []   # the shifts `touch_patches` picked this step (`loss.tactile_shift`)
         self._sync_nets()
         self.info = {"perceptual": self.perceptual.kind, "clip_d": "torchscript" if self.clip.active else "skipped",
                      "losses": {"visual_gan": self.visual_gan, "tactile_gan": self.tactile_gan,
@@ -76,15 +76,22 @@ class Ours(Method):
 
     def touch_patches(self, batch: Batch, tactile_fake: torch.Tensor) -> torch.Tensor:
         """The generated relief where each paired touch patch was recorded, or at the best shift within
-        `loss.tactile_shift` px of it (trainer/recipe/registration.py); the picked shifts' mean length is logged."""
+        `loss.tactile_shift` px of it (trainer/recipe/registration.py); the picks are kept for `pick_logs`."""
         k = self.cfg.loss.tactile_shift
         if not k:
             return cut(tactile_fake, batch.origins)
         patches, picked = best_shift_patches(tactile_fake, batch.origins, torch.cat([batch.gx, batch.gy], 1),
                                              batch.contact, k)
-        self.shift_log = {"t_shift_px": float(np.hypot(*picked.T).mean()) if len(picked) else 0.0,
-                          "t_shift_zero": float((picked == 0).all(1).mean()) if len(picked) else 1.0}
+        self.picks.append(picked)
         return patches
+
+    def pick_logs(self) -> dict[str, float]:
+        """The shifts picked since the last call (every crop of a step): mean length, share at the recorded corner."""
+        picked = np.concatenate(self.picks) if self.picks else np.zeros((0, 2), int)
+        self.picks = []
+        if not len(picked):
+            return {}
+        return {"t_shift_px": float(np.hypot(*picked.T).mean()), "t_shift_zero": float((picked == 0).all(1).mean())}
 
     # --- inputs of the discriminators ------------------------------------------------------------------------
     def tactile_inputs(self, batch: Batch, visual_fake: torch.Tensor, tactile_fake: torch.Tensor,
@@ -246,5 +253,5 @@ class Ours(Method):
             self._requires_grad(net, True)
         logs.update({k: v.item() for k, v in terms.items()})
         logs["g_total"] = total.item()
-        logs.update(self.shift_log)
+        logs.update(self.pick_logs())
         return logs

@@ -9,6 +9,10 @@ paired patch the generated map is cut at each shift within +-k px and the patch 
 lowest is the one every tactile term (L1, perceptual, texture, the tactile D's paired fake) then sees. Once the
 generator renders the consensus of the touches, the best shift of each is its offset. The choice is not
 differentiated (a hard pick, as in a min over alignments); the gradient flows through the picked patch.
+
+Measured and dropped, so off by default (docs/training.md, "Registration-tolerant touches"): the touches barely
+overlap, so nothing ties one touch's place to another's, the picks scatter over the window, and the relief comes out
+worse than when every touch is taken where it was recorded.
 """
 from __future__ import annotations
 
