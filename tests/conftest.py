@@ -66,3 +66,13 @@ def real_layout_dir(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("touchclothing")
     write_real_layout(root)
     return root
+
+
+@pytest.fixture(scope="session")
+def hard_one(tmp_path_factory) -> Path:
+    """A dataset folder with one hard-profile synthetic garment (320x240 frame): touches recorded off where they were
+    pressed, full-field truth. Tests write their outputs elsewhere, so it is shared."""
+    from trainer.data.synthetic import generate_dataset
+    root = tmp_path_factory.mktemp("hard_one")
+    generate_dataset(root, garments=1, seed=3, frame=(320, 240), progress=False, profile="hard")
+    return root

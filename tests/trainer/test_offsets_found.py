@@ -18,20 +18,13 @@ def of():
     return load_script("offsets_found")
 
 
-@pytest.fixture(scope="module")
-def hard(tmp_path_factory):
-    root = tmp_path_factory.mktemp("hard")
-    generate_dataset(root, garments=1, seed=3, frame=(320, 240), progress=False, profile="hard")
-    return root
-
-
-def test_the_truth_finds_the_offsets_and_a_run_is_scored_beside_it(of, hard, tmp_path):
-    src = next(hard.glob("singleskit_*"))
+def test_the_truth_finds_the_offsets_and_a_run_is_scored_beside_it(of, hard_one, tmp_path):
+    src = next(hard_one.glob("singleskit_*"))
     name = src.name.split("_")[1]
     run = tmp_path / "run"
     Trainer(load_config("tiny", overrides=["train.steps=1", "train.threads=1"]), src, run).run()
     out = tmp_path / "rows.json"
-    assert of.main([str(hard), name, str(run), "--radius", "3", "--json", str(out)]) == 0
+    assert of.main([str(hard_one), name, str(run), "--radius", "3", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
     offsets = yaml.safe_load((src / "synthetic.yaml").read_text())["realism"]["registration_offsets_px"]
     assert any(o != [0, 0] for o in offsets)
@@ -40,16 +33,16 @@ def test_the_truth_finds_the_offsets_and_a_run_is_scored_beside_it(of, hard, tmp
     assert truth["mean_px_left"] < 0.5 * recorded["mean_px_recorded"]
     assert recorded["mean_px_left"] == recorded["mean_px_recorded"] > 0
     assert rows[f"{run.parent.name}/run"]["touches"] >= 1
-    assert of.main([str(hard), name, "--split", "test", "--radius", "3", "--json", str(out)]) == 0
+    assert of.main([str(hard_one), name, "--split", "test", "--radius", "3", "--json", str(out)]) == 0
     held_out = json.loads(out.read_text())
     assert held_out["split"] == "test" and held_out["rows"]["truth"]["touches"] >= 1
 
 
-def test_what_cannot_be_placed_is_refused(of, hard, tmp_path):
+def test_what_cannot_be_placed_is_refused(of, hard_one, tmp_path):
     with pytest.raises(SystemExit, match="no garment Nothing"):
-        of.main([str(hard), "Nothing"])
+        of.main([str(hard_one), "Nothing"])
     with pytest.raises(SystemExit, match="radius"):
-        of.main([str(hard), "x", "--radius", "0"])
+        of.main([str(hard_one), "x", "--radius", "0"])
     easy = tmp_path / "easy"
     generate_dataset(easy, garments=1, seed=3, frame=(320, 240), progress=False, profile="easy")
     name = next(easy.glob("singleskit_*")).name.split("_")[1]

@@ -17,13 +17,6 @@ def rc():
     return load_script("registered_copy")
 
 
-@pytest.fixture(scope="module")
-def hard(tmp_path_factory):
-    root = tmp_path_factory.mktemp("hard")
-    generate_dataset(root, garments=1, seed=3, frame=(320, 240), progress=False, profile="hard")
-    return root
-
-
 def _touch_error(g) -> float:
     """Mean |recorded gx - truth gx| over every touch's contact pixels."""
     ft, errs = g.full_tactile, []
@@ -34,12 +27,12 @@ def _touch_error(g) -> float:
     return float(np.concatenate(errs).mean())
 
 
-def test_registered_copy_moves_every_touch_back(rc, hard, tmp_path):
-    src = next(hard.glob("singleskit_*"))
+def test_registered_copy_moves_every_touch_back(rc, hard_one, tmp_path):
+    src = next(hard_one.glob("singleskit_*"))
     name = src.name.split("_")[1]
     offsets = yaml.safe_load((src / "synthetic.yaml").read_text())["realism"]["registration_offsets_px"]
     assert any(o != [0, 0] for o in offsets), "the fixture should have some registration error to undo"
-    dst = rc.registered_copy(hard, name, tmp_path)
+    dst = rc.registered_copy(hard_one, name, tmp_path)
     before, after = load_garment(src), load_garment(dst)
     for split, touches in before.touches.items():
         for t0, t1 in zip(touches, after.touches[split]):
@@ -52,13 +45,13 @@ def test_registered_copy_moves_every_touch_back(rc, hard, tmp_path):
                                                                           after.full_tactile.gx)
 
 
-def test_registered_copy_refuses_what_it_cannot_register(rc, hard, tmp_path):
+def test_registered_copy_refuses_what_it_cannot_register(rc, hard_one, tmp_path):
     with pytest.raises(SystemExit, match="no garment Nothing"):
-        rc.registered_copy(hard, "Nothing", tmp_path)
-    src = next(hard.glob("singleskit_*"))
+        rc.registered_copy(hard_one, "Nothing", tmp_path)
+    src = next(hard_one.glob("singleskit_*"))
     name = src.name.split("_")[1]
     with pytest.raises(SystemExit, match="overwrite its source"):
-        rc.registered_copy(hard, name, hard)
+        rc.registered_copy(hard_one, name, hard_one)
     easy = tmp_path / "easy"
     generate_dataset(easy, garments=1, seed=3, frame=(192, 144), progress=False, profile="easy")
     with pytest.raises(SystemExit, match="no registration offsets"):
