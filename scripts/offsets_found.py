@@ -64,7 +64,7 @@ def score(found: dict[str, tuple[int, int]], offsets: list[tuple[int, int]]) -> 
     """Hits (the shift is exactly -offset), the mean distance left between where the touch is then placed and where
     it was pressed, and the same distance for the recorded corner."""
     if not found:
-        raise SystemExit("no training touch lies inside the crop with room for the shifts")
+        raise SystemExit("no touch of the split lies inside the crop with room for the shifts")
     left, before, hits = [], [], 0
     for name, (dx, dy) in found.items():
         ox, oy = offsets[int(name.split("_")[-2]) - 1]
@@ -75,22 +75,24 @@ def score(found: dict[str, tuple[int, int]], offsets: list[tuple[int, int]]) -> 
             "mean_px_left": round(float(np.mean(left)), 3), "mean_px_recorded": round(float(np.mean(before)), 3)}
 
 
-def model_relief(run: Path, which: str) -> tuple[tuple[np.ndarray, np.ndarray], tuple[int, int], Path]:
+def model_relief(run: Path, which: str, g: Garment) -> tuple[tuple[np.ndarray, np.ndarray], tuple[int, int]]:
+    """A run's relief (gx, gy) on its evaluation crop of `g`, and the crop's corner in the padded frame."""
     import torch
 
     from trainer.checkpoint import load_generator, read_checkpoint
     from trainer.config import config_from_dict
     from trainer.sampling import crop_tensors
+    trained_on = Path(config_from_dict(read_checkpoint(run, which)["config"]).garment).name
+    if trained_on != g.name:
+        raise SystemExit(f"{run}: trained on {trained_on}, not {g.name}")
     net, info = load_generator(run, which)
-    garment = Path(config_from_dict(read_checkpoint(run, which)["config"]).garment)
-    g = load_garment(garment)
     side = int(info["crop"])
     origin = eval_crop_origin(g.mask, side)
     sk, mk, _ = crop_tensors(g, origin, side)
     with torch.no_grad():
         _, tac = net(sk, mk)
     t = tac[0].numpy()
-    return (t[0], t[1]), origin, garment
+    return (t[0], t[1]), origin
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -116,9 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     found_truth = best_shifts((g.full_tactile.gx, g.full_tactile.gy), (0, 0), g, a.radius, a.split)   # whole frame
     rows = {"recorded": score({k: (0, 0) for k in found_truth}, offsets), "truth": score(found_truth, offsets)}
     for run in a.runs:
-        relief, run_origin, garment = model_relief(run, a.which)
-        if garment.name != g.name:
-            raise SystemExit(f"{run}: trained on {garment.name}, not {g.name}")
+        relief, run_origin = model_relief(run, a.which, g)
         rows[f"{run.parent.name}/{run.name}"] = score(best_shifts(relief, run_origin, g, a.radius, a.split), offsets)
     print(f"{g.name}: {a.split} touches placed by the best shift within {a.radius} px")
     print(f"{'row':<34} {'touches':>7} {'hits':>5} {'px left':>8} {'px recorded':>11}")

@@ -36,6 +36,11 @@ def test_the_truth_finds_the_offsets_and_a_run_is_scored_beside_it(of, hard_one,
     assert of.main([str(hard_one), name, "--split", "test", "--radius", "3", "--json", str(out)]) == 0
     held_out = json.loads(out.read_text())
     assert held_out["split"] == "test" and held_out["rows"]["truth"]["touches"] >= 1
+    other = tmp_path / "other"   # the same garment under another name: the run was not trained on it
+    other.mkdir()
+    (other / src.name.replace(name, "Other")).symlink_to(src.resolve(), target_is_directory=True)
+    with pytest.raises(SystemExit, match="trained on"):
+        of.main([str(other), "Other", str(run)])
 
 
 def test_what_cannot_be_placed_is_refused(of, hard_one, tmp_path):
@@ -48,5 +53,5 @@ def test_what_cannot_be_placed_is_refused(of, hard_one, tmp_path):
     name = next(easy.glob("singleskit_*")).name.split("_")[1]
     with pytest.raises(SystemExit, match="no recorded registration offsets"):
         of.main([str(easy), name])
-    with pytest.raises(SystemExit, match="no training touch"):
+    with pytest.raises(SystemExit, match="no touch of the split"):
         of.score({}, [])
