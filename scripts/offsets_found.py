@@ -25,6 +25,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from trainer.augment import eval_crop_origin  # noqa: E402
+from trainer.data.synthetic import registration_offset  # noqa: E402
 from trainer.data.touchclothing import DatasetError, Garment, find_garment, load_garment  # noqa: E402
 from trainer.recipe.registration import shifts  # noqa: E402
 
@@ -44,6 +45,7 @@ def best_shifts(relief: tuple[np.ndarray, np.ndarray], origin: tuple[int, int], 
     `origin` of the padded frame): the (dx, dy) at which |relief - touch| over its contact pixels is lowest."""
     gx, gy = relief
     side_y, side_x = gx.shape
+    tried = shifts(radius)
     out = {}
     for t in g.touches.get(split, []):
         r = t.rect
@@ -53,10 +55,10 @@ def best_shifts(relief: tuple[np.ndarray, np.ndarray], origin: tuple[int, int], 
         if not t.contact.any():
             continue
         cost = []
-        for dx, dy in shifts(radius):
+        for dx, dy in tried:
             win = np.s_[y + dy:y + dy + r.h, x + dx:x + dx + r.w]
             cost.append(np.abs(gx[win] - t.gx)[t.contact].mean() + np.abs(gy[win] - t.gy)[t.contact].mean())
-        out[t.name] = shifts(radius)[int(np.argmin(cost))]
+        out[t.name] = tried[int(np.argmin(cost))]
     return out
 
 
@@ -67,7 +69,10 @@ def score(found: dict[str, tuple[int, int]], offsets: list[tuple[int, int]]) -> 
         raise SystemExit("no touch of the split lies inside the crop with room for the shifts")
     left, before, hits = [], [], 0
     for name, (dx, dy) in found.items():
-        ox, oy = offsets[int(name.split("_")[-2]) - 1]
+        try:
+            ox, oy = registration_offset(offsets, name)
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from exc
         hits += (dx, dy) == (-ox, -oy)
         left.append(np.hypot(dx + ox, dy + oy))
         before.append(np.hypot(ox, oy))

@@ -20,6 +20,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from trainer.data.synthetic import registration_offset  # noqa: E402
 from trainer.data.touchclothing import DatasetError, find_garment  # noqa: E402
 
 SPLITS = ("trainT", "valT", "testT")
@@ -45,10 +46,10 @@ def registered_copy(data: Path, name: str, out: Path) -> Path:
     moved = 0
     for split in SPLITS:
         for f in sorted((dst / split).glob("*_tactile.npz")):
-            serial = f.stem.split("_")[-2]
-            if not serial.isdigit() or not 1 <= int(serial) <= len(offsets):
-                raise SystemExit(f"{f.name}: no registration offset for this touch ({len(offsets)} recorded)")
-            dx, dy = (int(v) for v in offsets[int(serial) - 1])
+            try:
+                dx, dy = registration_offset(offsets, f.stem)
+            except ValueError as exc:
+                raise SystemExit(str(exc)) from exc
             with np.load(f) as z:
                 arrays = dict(z)
             arrays["vision_mask_x"] = np.asarray(int(arrays["vision_mask_x"]) - dx)

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from tests.scripts_module import load_script
-from trainer.data.synthetic import generate_dataset
+from trainer.data.synthetic import generate_dataset, registration_offset
 from trainer.data.touchclothing import load_garment
 
 
@@ -36,7 +36,7 @@ def test_registered_copy_moves_every_touch_back(rc, hard_one, tmp_path):
     before, after = load_garment(src), load_garment(dst)
     for split, touches in before.touches.items():
         for t0, t1 in zip(touches, after.touches[split]):
-            dx, dy = offsets[int(t0.name.split("_")[-2]) - 1]
+            dx, dy = registration_offset(offsets, t0.name)
             assert (t1.rect.x, t1.rect.y) == (t0.rect.x - dx, t0.rect.y - dy)
             assert np.array_equal(t0.gx, t1.gx) and np.array_equal(t0.contact, t1.contact)
     # the recorded slopes now sit on the truth they were measured from (only the sensor noise is left)
@@ -56,3 +56,11 @@ def test_registered_copy_refuses_what_it_cannot_register(rc, hard_one, tmp_path)
     generate_dataset(easy, garments=1, seed=3, frame=(192, 144), progress=False, profile="easy")
     with pytest.raises(SystemExit, match="no registration offsets"):
         rc.registered_copy(easy, next(easy.glob("singleskit_*")).name.split("_")[1], tmp_path / "out")
+
+
+def test_a_touch_s_offset_is_read_by_its_serial_and_unknown_serials_are_refused():
+    offsets = [[1, -2], [0, 3]]
+    assert registration_offset(offsets, "denimshorts_0002_tactile") == (0, 3)
+    for bad in ("denimshorts_0003_tactile", "denimshorts_0000_tactile", "denimshorts_full_tactile", "tactile"):
+        with pytest.raises(ValueError, match="no registration offset for this touch"):
+            registration_offset(offsets, bad)

@@ -397,6 +397,17 @@ def generate_garment(out_dir: Path, spec: GarmentSpec, *, frame: tuple[int, int]
     return final
 
 
+def registration_offset(offsets: Sequence, touch: str) -> tuple[int, int]:
+    """The recorded-minus-pressed corner (dx, dy) of the touch named `touch` (<material>_<serial>_tactile), from
+    synthetic.yaml's `realism.registration_offsets_px`, which `generate_garment` writes in serial order."""
+    parts = touch.split("_")
+    serial = parts[-2] if len(parts) >= 3 else ""
+    if not serial.isdigit() or not 1 <= int(serial) <= len(offsets):
+        raise ValueError(f"{touch}: no registration offset for this touch ({len(offsets)} recorded)")
+    dx, dy = offsets[int(serial) - 1]
+    return int(dx), int(dy)
+
+
 def _worker_init() -> None:
     cv2.setNumThreads(1)
 
