@@ -7,6 +7,7 @@ from pathlib import Path
 
 from exporter.quiet import chatter_to
 from trainer.models.mirror_modes import MODES as MIRROR_MODES
+from trainer.relief_rules import RULES as RELIEF_RULES
 
 
 def _sizes(text: str) -> list[tuple[int, int]]:
@@ -69,10 +70,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--model-version", default=None,
                    help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
-    p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
-                   help="multiply the tactile output by one gain fitted on the garment's training touches "
-                        "(trainer/calibration.py; rms matches their relief's energy, lift never shrinks it); "
-                        "default none: as trained")
+    p.add_argument("--relief", choices=RELIEF_RULES, default="none",
+                   help="calibrate the tactile output on the garment's training touches (trainer/relief.py): one "
+                        "gain (rms matches their relief's energy, lift never shrinks it), or shade: mixed with the "
+                        "visual's own shading, one more convolution in every graph; default none: as trained")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
                         "generator passes: the tactile latency grows with them; a -low mode averages only the coarse "

@@ -180,19 +180,20 @@ def _recipe(cfg: ExportConfig) -> dict[str, str]:
 
 
 def _calibrated(generator, garment_dir: Path, side: int, rule: str):
-    """The generator with its relief gain (trainer/calibration.py) as part of every graph, and the provenance line
+    """The generator with its relief calibration (trainer/relief.py) as part of every graph, and the provenance line
     that says so. A garment that cannot calibrate it is an error: the operator asked for a calibrated bundle."""
-    from trainer.calibration import RULES, CalibrationError, fit_relief_gain
+    from trainer.calibration import CalibrationError
     from trainer.data.touchclothing import load_garment
-    from trainer.models.relief_gain import ReliefGain
+    from trainer.relief import calibrate
+    from trainer.relief_rules import RULES
 
-    if rule not in RULES:
-        raise ExportError(f"relief must be one of {', '.join(RULES)}; got {rule!r}")
+    if rule not in RULES or rule == "none":
+        raise ExportError(f"relief must be one of {', '.join(r for r in RULES if r != 'none')}; got {rule!r}")
     try:
-        fit = fit_relief_gain(generator, load_garment(garment_dir), side, rule)
+        wrapped, _, line = calibrate(generator, load_garment(garment_dir), side, rule)
     except CalibrationError as exc:
         raise ExportError(f"cannot calibrate the relief: {exc}. Export without --relief") from None
-    return ReliefGain(generator, fit.gain).eval(), f"{rule} x{fit.gain:.4f} from {fit.touches} training touches"
+    return wrapped, line
 
 
 def export_run(run_dir: Path, out: Path, cfg: ExportConfig, *, signing_key=None, progress=print) -> ExportReport:

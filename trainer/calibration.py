@@ -28,9 +28,10 @@ from torch import nn
 
 from trainer.augment import eval_crop_origin
 from trainer.data.touchclothing import Garment
+from trainer.relief_rules import GAIN_RULES
 from trainer.sampling import crop_tensors
 
-RULES = ("none", "rms", "ls", "lift")
+
 # A gain outside this range means the model's relief is (nearly) flat on the touches: scaling it would amplify
 # noise, not restore texture, so the fit is refused and the model is used as trained.
 GAIN_RANGE = (0.25, 4.0)
@@ -73,8 +74,8 @@ def touch_pixels(g: Garment, origin: tuple[int, int], side: int, split: str = "t
 @torch.no_grad()
 def fit_relief_gain(net: nn.Module, g: Garment, side: int, rule: str = "rms") -> Fit:
     """The gain of `rule` for `net` on garment `g` at crop `side` (the evaluation crop). Raises CalibrationError."""
-    if rule not in RULES or rule == "none":
-        raise ValueError(f"relief rule must be one of {', '.join(r for r in RULES if r != 'none')}; got {rule!r}")
+    if rule not in GAIN_RULES:
+        raise ValueError(f"relief rule must be one of {', '.join(GAIN_RULES)}; got {rule!r}")
     origin = eval_crop_origin(g.mask, side)
     found = touch_pixels(g, origin, side)
     n = sum(len(f[0]) for f in found)

@@ -15,7 +15,7 @@ import torch
 
 from trainer import eval_cache, provenance, target_plot, verdict
 from trainer.bootstrap import paired_bootstrap
-from trainer.calibration import RULES
+from trainer.relief_rules import RULES
 from trainer.checkpoint import WEIGHTS
 from trainer.evaluate import HIGHER_IS_BETTER, Evaluation, Prediction, reference_predictions
 from trainer.models.mirror_modes import MODES as MIRROR_MODES

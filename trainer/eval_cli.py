@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from trainer.models.mirror_modes import MODES as MIRROR_MODES
+from trainer.relief_rules import RULES
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -33,10 +34,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="--pool: read only these garments' runs (any name of one: SatinShirt, satin-shirt, its "
                         "folder), so a part of a check can come from one table and be pooled with the rest after")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
-    p.add_argument("--relief", choices=("none", "rms", "ls", "lift"), default="none",
-                   help="calibrate each run's tactile output with one gain fitted on its garment's training touches "
-                        "before scoring (trainer/calibration.py: rms matches the relief's energy, ls is the least-squares "
-                        "gain, lift the ls gain floored at 1; default none: as trained); with --compare, RUN@rms "
+    p.add_argument("--relief", choices=RULES, default="none",
+                   help="calibrate each run's tactile output on its garment's training touches before scoring "
+                        "(trainer/relief.py): one gain (rms matches the relief's energy, ls is the least-squares "
+                        "gain, lift the ls gain floored at 1), or shade: the relief mixed with its own photo's "
+                        "shading (trainer/shading_fit.py); default none: as trained; with --compare, RUN@rms "
                         "calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "

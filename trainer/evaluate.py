@@ -23,15 +23,15 @@ import torch
 
 from trainer.augment import CropError, eval_crop_origin, object_bbox, resolve_crop
 from trainer.bootstrap import Units
-from trainer.calibration import CalibrationError, fit_relief_gain
+from trainer.calibration import CalibrationError
 from trainer.checkpoint import CheckpointError, load_generator, read_checkpoint
 from trainer.config import config_from_dict
 from trainer.data.touchclothing import DatasetError, Garment, extract_patches, find_garments, load_garment
 from trainer.heldout import heldout_errors, touch_rect_mask
 from trainer.metrics import full_field_scores, visual_scores
 from trainer.models.mirror_average import MirrorAverage
-from trainer.models.relief_gain import ReliefGain
 from trainer.physical import LINE_REACH_MM
+from trainer.relief import calibrate
 from trainer.references import WEAVE_CUTOFF, object_colour, oracle, paint, weave_period_px, weave_split
 from trainer.sampling import crop_tensors, cut, patches_to_tensors
 from trainer.sheets import friction_tile, grid, label, normal_tile, save_png, to_uint8
@@ -324,12 +324,10 @@ class Prediction:
         self.relief = None
         if relief != "none":   # trainer/calibration.py: fitted on the training touches, applied to every output
             try:
-                fit = fit_relief_gain(self.net, g, side, relief)
+                self.net, self.relief, _ = calibrate(self.net, g, side, relief)
             except CalibrationError as exc:
                 log.warning("eval: %s: %s", self.run, exc)
                 self.relief = {"rule": relief, "gain": None, "refused": str(exc)}
-            else:
-                self.net, self.relief = ReliefGain(self.net, fit.gain).eval(), fit.as_dict()
         if unseen:
             self.ctx.unseen = find_unseen(g, side, unseen_from)
         with torch.no_grad():

@@ -170,6 +170,30 @@ def test_relief_calibrated_bundle_scales_the_tactile_output_only(run_dir, tmp_pa
     assert not (tmp_path / "x.vtb").exists()
 
 
+def test_shading_relief_runs_inside_the_graph(run_dir, tmp_path):
+    """--relief shade: the fitted photo filter is one convolution in every graph, so ONNX Runtime returns what the
+    wrapper returns in torch; the visual output is the plain bundle's, and the manifest says so."""
+    from trainer.checkpoint import load_generator
+    from trainer.config import read_run_config
+    from trainer.data.touchclothing import load_garment
+    from trainer.shading_fit import fit_shading
+
+    s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+    s[40:200, 40], s[40:200, 210], s[40, 40:211], s[200, 40:211] = 0, 0, 0, 0
+    x = network_input(s, object_mask(s))
+    outs = {}
+    for relief in ("none", "shade"):
+        b, outs[relief] = _exported_outputs(run_dir, tmp_path, f"s-{relief}", x, relief=relief)
+    assert b.manifest.provenance["relief"].startswith("shade: model x")
+    gen, info = load_generator(run_dir)
+    fit = fit_shading(gen.eval(), load_garment(read_run_config(run_dir).garment), int(info["crop"]))
+    with torch.no_grad():
+        _, want = fit.wrap(gen.eval())(torch.from_numpy(x.sketch), torch.from_numpy(x.mask))
+    assert np.abs(outs["shade"][1] - want.numpy()).max() < 1e-4
+    assert np.abs(outs["shade"][0] - outs["none"][0]).max() < 1e-6
+    assert np.abs(outs["shade"][1] - outs["none"][1]).max() > 1e-4
+
+
 def test_mirrored_bundle_averages_the_relief_inside_the_graph(run_dir, tmp_path):
     """--mirrors: every view runs inside the graph (ONNX Transpose / flip), so ONNX Runtime returns what the wrapper
     returns in torch; the visual output is the plain bundle's, and the manifest says which views."""

@@ -181,10 +181,11 @@ def Path_(s):
 
 
 def test_both_command_lines_offer_exactly_the_rules():
-    """The CLIs keep torch out of --help, so they spell the rules out; this holds them to trainer.calibration's."""
+    """The CLIs keep torch out of --help, so they read the rules from trainer.relief_rules; every rule is offered and
+    the default is the model as trained."""
     from exporter.cli import build_parser as export_parser
-    from trainer.calibration import RULES
     from trainer.eval_cli import build_parser as eval_parser
+    from trainer.relief_rules import RULES
     for parser in (eval_parser("eval"), export_parser("export")):
         action = next(a for a in parser._actions if "--relief" in a.option_strings)
         assert tuple(action.choices) == RULES and action.default == "none"
