@@ -19,11 +19,11 @@ def calibrate(net: nn.Module, g: Garment, side: int, rule: str) -> tuple[nn.Modu
     training touches cannot fit it, ValueError for an unknown rule."""
     if rule not in RULES or rule == "none":
         raise ValueError(f"relief rule must be one of {', '.join(r for r in RULES if r != 'none')}; got {rule!r}")
-    if rule == "shade":
+    if rule.startswith("shade"):
         from trainer.shading_fit import fit_shading
 
-        fit = fit_shading(net, g, side)
-        return fit.wrap(net), fit.as_dict(), (f"shade: model x{fit.model_weight:.4f} + its photo's shading, from "
-                                              f"{fit.touches} training touches")
+        fit = fit_shading(net, g, side, floor=1.0 if rule == "shade-lift" else None)
+        return fit.wrap(net), {**fit.as_dict(), "rule": rule}, (
+            f"{rule}: model x{fit.model_weight:.4f} + its photo's shading, from {fit.touches} training touches")
     fit = calibration.fit_relief_gain(net, g, side, rule)   # by module: one place to stand in for it in tests
     return ReliefGain(net, fit.gain).eval(), fit.as_dict(), f"{rule} x{fit.gain:.4f} from {fit.touches} training touches"

@@ -2,4 +2,5 @@
 torch."""
 
 GAIN_RULES = ("rms", "ls", "lift")               # one gain: trainer/calibration.py
-RULES = ("none", *GAIN_RULES, "shade")           # shade: the visual's own shading mixed in, trainer/shading_fit.py
+# shade: the visual's own shading mixed in (trainer/shading_fit.py); shade-lift: the same, the model's weight >= 1
+RULES = ("none", *GAIN_RULES, "shade", "shade-lift")

@@ -4,6 +4,9 @@ Over the contact pixels of every training touch inside the evaluation crop, the 
 the model's own relief (one weight, not shrunk) and on each filter of the bank applied to the model's own visual
 output (ridge-shrunk on standardised columns, so a filter the touches do not support stays near 0). Only the
 training touches are used: it is part of the method, like the relief gain (trainer/calibration.py).
+
+`shade-lift` holds the model's weight at 1 or above, as `lift` holds the gain: below 1 the fit buys per-pixel angle
+by flattening the model's weave, which the texture statistic pays for (docs/training.md, "Shading relief").
 """
 from __future__ import annotations
 
@@ -32,15 +35,24 @@ class ShadingFit:
     touches: int
 
     def as_dict(self) -> dict:
-        return {"rule": "shade", "model_weight": self.model_weight, "filter_weights": list(self.weights),
+        return {"model_weight": self.model_weight, "filter_weights": list(self.weights),
                 "pixels": self.pixels, "touches": self.touches}
 
     def wrap(self, net: nn.Module) -> ShadingRelief:
         return ShadingRelief(net, self.model_weight, self.kernel).eval()
 
 
-def solve(columns: np.ndarray, target: np.ndarray, ridge: float = RIDGE) -> np.ndarray:
-    """Ridge least squares, column 0 (the model's relief) unshrunk. Columns below TINY RMS get weight 0."""
+def solve(columns: np.ndarray, target: np.ndarray, ridge: float = RIDGE, floor: float | None = None) -> np.ndarray:
+    """Ridge least squares, column 0 (the model's relief) unshrunk. Columns below TINY RMS get weight 0. With
+    `floor`, a model weight below it is held at it and the other weights refitted to what is left."""
+    if floor is not None:
+        w = solve(columns, target, ridge)
+        if w[0] >= floor:
+            return w
+        rest = solve(np.concatenate([np.zeros((len(target), 1)), columns[:, 1:]], 1),
+                     target - floor * columns[:, 0], ridge)
+        rest[0] = floor
+        return rest
     rms = np.sqrt((columns * columns).mean(0))
     live = rms > TINY
     w = np.zeros(columns.shape[1])
@@ -53,7 +65,8 @@ def solve(columns: np.ndarray, target: np.ndarray, ridge: float = RIDGE) -> np.n
 
 
 @torch.no_grad()
-def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE) -> ShadingFit:
+def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE, floor: float | None = None
+                ) -> ShadingFit:
     """The shading relief of `net` on garment `g` at crop `side`. Raises CalibrationError (too few touch pixels,
     or a model and photo with no relief to weigh)."""
     origin = eval_crop_origin(g.mask, side)
@@ -72,7 +85,7 @@ def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE) -> 
     target = np.concatenate([np.concatenate([f[2] for f in found]), np.concatenate([f[3] for f in found])])
     cols = [np.concatenate([tac[0, yy, xx], tac[1, yy, xx]])]
     cols += [np.concatenate([feats[2 * j, yy, xx], feats[2 * j + 1, yy, xx]]) for j in range(len(bank))]
-    w = solve(np.stack(cols, 1), target.astype(np.float64), ridge)
+    w = solve(np.stack(cols, 1), target.astype(np.float64), ridge, floor)
     if not np.isfinite(w).all() or w[0] <= 0:
         raise CalibrationError(f"{g.name}: the model's relief gets weight {w[0]:.3g} beside its photo's shading on "
                                "the training touches (unrelated to them); it is used as trained")

@@ -201,3 +201,31 @@ def test_calibrate_names_the_rule_and_its_fit(garment):
     assert isinstance(wrapped, ShadingRelief) and info["rule"] == "shade" and line.startswith("shade: model x")
     with pytest.raises(ValueError, match="relief rule"):
         calibrate(net, garment, SIDE, "none")
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(40, 200), k=st.integers(1, 5), model=st.floats(-0.5, 3.0), seed=st.integers(0, 10_000))
+def test_a_floored_model_weight_never_falls_below_the_floor(n, k, model, seed):
+    """shade-lift: an unconstrained model weight at or above 1 is kept as found; below 1 it is held at 1 and the
+    other weights explain what is left."""
+    rng = np.random.default_rng(seed)
+    cols = rng.normal(0, 1, (n, k + 1))
+    w = np.concatenate([[model], rng.normal(0, 1, k)])
+    target = cols @ w
+    free, floored = solve(cols, target, ridge=0.0), solve(cols, target, ridge=0.0, floor=1.0)
+    assert floored[0] >= 1.0
+    if free[0] >= 1.0:
+        assert np.array_equal(free, floored)
+    else:
+        assert floored[0] == 1.0
+        rest = solve(np.concatenate([np.zeros((n, 1)), cols[:, 1:]], 1), target - cols[:, 0], ridge=0.0)
+        assert np.allclose(floored[1:], rest[1:])
+
+
+def test_shade_lift_names_itself_and_keeps_the_relief_at_full_strength(garment):
+    """A model whose relief is twice the touches' would get weight 1/2 under `shade`; `shade-lift` keeps 1."""
+    net = PhotoNet(garment, touch_field(garment, scale=2.0))
+    _, free, _ = calibrate(net, garment, SIDE, "shade")
+    wrapped, info, line = calibrate(net, garment, SIDE, "shade-lift")
+    assert free["model_weight"] < 0.9 and info["model_weight"] == 1.0
+    assert info["rule"] == "shade-lift" and line.startswith("shade-lift: model x1.0000")
