@@ -95,7 +95,7 @@ def test_the_photo_gives_back_the_fine_relief_a_coarse_model_lacks(garment):
 @given(light=st.floats(0.0, 2 * np.pi))
 def test_a_photo_lit_from_any_side_is_integrated_back(garment, light):
     """A photo that is exactly the relief's shading under a lamp from direction `light`: the filters' directions and
-    weights find it whatever the lamp's side (measured over 48 directions: 8.9 -> 2.6-5.1 deg)."""
+    weights find it whatever the lamp's side (measured over 48 directions: 8.9 -> 2.7-5.2 deg)."""
     coarse = _coarse_truth(garment)
     x, y = eval_crop_origin(garment.mask, SIDE)
     ft = garment.full_tactile

@@ -27,7 +27,7 @@ from kiosk.contract.graph import GRAPH_OUTPUTS
 BANDS = ((0.7, 1.5), (1.5, 3.0))
 DIRECTIONS = 4            # integration directions over the half circle
 REGULARISE = 1.0          # k.u^2 + REGULARISE |k|^2: the integral stays finite across the light
-KERNEL = 31               # spatial support of each filter (px)
+KERNEL = 11               # filter support (px): 31, 21, 15 and 11 score alike (11 best by <0.05 deg), 11 is 8x cheaper
 FILL_SIGMA = 8.0          # the background filled from the object within about this distance
 LUMA = (0.299, 0.587, 0.114)
 FLOOR = 1e-3              # luminance floor before the log (a black pixel must not reach -inf)
