@@ -1,8 +1,8 @@
 """One entry for every relief calibration rule, so evaluation and the exporter wrap a generator the same way.
 
-`rms`, `ls`, `lift`: one gain (trainer/calibration.py, trainer/models/relief_gain.py). `shade`: the model's relief
-mixed with its own photo's shading (trainer/shading_fit.py, trainer/models/shading_relief.py). All are fitted on
-the garment's training touches only.
+`rms`, `ls`, `lift`: one gain (trainer/calibration.py, trainer/models/relief_gain.py). `shade`, `shade-lift`: the
+model's relief mixed with its own photo's shading (trainer/shading_fit.py, trainer/models/shading_relief.py). All
+are fitted on the garment's training touches only.
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ linear form reads that back: the shading's fine bands are the height's derivativ
 their integral along it, and its gradient the slopes. The light's direction and strength are not assumed; a few
 fixed filters (fine bands of the log-luminance, integrated along a few directions) are mixed with the model's own
 relief by weights fitted on the training touches. One fixed linear filter on the photo, so it is exported as one
-convolution beside the tactile head and costs the graph little.
+convolution beside the tactile head (with the fill below; its cost: docs/performance.md, "The shading relief").
 
 The photo's log-luminance is taken over the object only: the background (the visual head's 0, grey) is filled with
 the object's own luminance nearby (a normalised Gaussian), so the silhouette does not read as a cliff.
