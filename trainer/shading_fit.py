@@ -85,9 +85,12 @@ def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE, flo
     target = np.concatenate([np.concatenate([f[2] for f in found]), np.concatenate([f[3] for f in found])])
     cols = [np.concatenate([tac[0, yy, xx], tac[1, yy, xx]])]
     cols += [np.concatenate([feats[2 * j, yy, xx], feats[2 * j + 1, yy, xx]]) for j in range(len(bank))]
-    w = solve(np.stack(cols, 1), target.astype(np.float64), ridge, floor)
-    if not np.isfinite(w).all() or w[0] <= 0:
+    a, target = np.stack(cols, 1), target.astype(np.float64)
+    w = solve(a, target, ridge)
+    if not np.isfinite(w).all() or w[0] <= 0:   # judged before any floor, as `lift` judges the ls gain
         raise CalibrationError(f"{g.name}: the model's relief gets weight {w[0]:.3g} beside its photo's shading on "
                                "the training touches (unrelated to them); it is used as trained")
+    if floor is not None and w[0] < floor:
+        w = solve(a, target, ridge, floor)
     kernel = np.tensordot(w[1:], bank, axes=1).astype(np.float32)
     return ShadingFit(float(w[0]), tuple(float(v) for v in w[1:]), kernel, n, len(found))

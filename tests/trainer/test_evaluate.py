@@ -344,6 +344,16 @@ def test_compare_on_tiny_runs_has_reference_rows_gaps_and_intervals(synth, tmp_p
     assert mir["runs"][1]["full_angle_deg"] != pytest.approx(mir["runs"][0]["full_angle_deg"])
     assert mir["runs"][1]["visual_psnr"] == pytest.approx(mir["runs"][0]["visual_psnr"])
     assert (runs[0] / "eval" / "compare-best-flip-ls.json").is_file()
+    # RUN@shade-lift: the relief mixed with the run's own visual shading (trainer/shading_fit.py), weight >= 1
+    assert vtkiosk(["eval", "--compare", str(runs[0]), f"{runs[0]}@shade-lift", "--out", str(cmp_dir / "shade"),
+                    "--bootstrap", "200"]) == 0
+    sh = json.loads((cmp_dir / "shade" / "compare.json").read_text())
+    assert [r["method"] for r in sh["runs"]] == ["ours", "ours-shade-lift"]
+    sfit = sh["runs"][1]["relief"]
+    assert sfit["rule"] == "shade-lift" and sfit["model_weight"] >= 1.0 and len(sfit["filter_weights"]) == 8
+    assert sh["runs"][1]["full_angle_deg"] != pytest.approx(sh["runs"][0]["full_angle_deg"])
+    assert sh["runs"][1]["visual_psnr"] == pytest.approx(sh["runs"][0]["visual_psnr"])
+    assert (runs[0] / "eval" / "compare-best-shade-lift.json").is_file()
     assert vtkiosk(["eval", "--run", str(runs[0]), "--relief", "rms", "--no-swap"]) == 0
     merged = json.loads((runs[0] / "metrics.json").read_text())
     assert merged["eval_rms"]["relief"]["gain"] == pytest.approx(fit["gain"]) and "eval" not in merged
