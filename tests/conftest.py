@@ -76,3 +76,14 @@ def hard_one(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("hard_one")
     generate_dataset(root, garments=1, seed=3, frame=(320, 240), progress=False, profile="hard")
     return root
+
+
+@pytest.fixture(scope="session")
+def easy_garment(tmp_path_factory):
+    """One easy-profile synthetic garment (192x144 frame), loaded: its photo is Lambert shading of its touch field.
+    The relief calibrations' tests read it and never write, so it is shared."""
+    from trainer.data.synthetic import generate_dataset
+    from trainer.data.touchclothing import load_garment
+    root = tmp_path_factory.mktemp("easy_garment")
+    generate_dataset(root, garments=1, seed=0, frame=(192, 144), progress=False, profile="easy")
+    return load_garment(next(p for p in root.iterdir() if p.is_dir()))

@@ -72,18 +72,27 @@ def touch_pixels(g: Garment, origin: tuple[int, int], side: int, split: str = "t
 
 
 @torch.no_grad()
-def fit_relief_gain(net: nn.Module, g: Garment, side: int, rule: str = "rms") -> Fit:
-    """The gain of `rule` for `net` on garment `g` at crop `side` (the evaluation crop). Raises CalibrationError."""
-    if rule not in GAIN_RULES:
-        raise ValueError(f"relief rule must be one of {', '.join(GAIN_RULES)}; got {rule!r}")
+def fit_inputs(net: nn.Module, g: Garment, side: int, what: str):
+    """What every relief calibration fits on: the training touches' contact pixels in the evaluation crop
+    (`touch_pixels`), their count, and the model's mask, visual and tactile outputs on that crop. Raises
+    CalibrationError when too few pixels are measured to fit `what`."""
     origin = eval_crop_origin(g.mask, side)
     found = touch_pixels(g, origin, side)
     n = sum(len(f[0]) for f in found)
     if n < MIN_PIXELS:
         raise CalibrationError(f"{g.name}: {n} training-touch contact pixels inside the {side} px evaluation crop "
-                               f"(at least {MIN_PIXELS} are needed to fit a relief gain)")
+                               f"(at least {MIN_PIXELS} are needed to fit {what})")
     sketch, mask, _ = crop_tensors(g, origin, side)
-    _, tac = net(sketch, mask)
+    vis, tac = net(sketch, mask)
+    return found, n, mask, vis, tac
+
+
+@torch.no_grad()
+def fit_relief_gain(net: nn.Module, g: Garment, side: int, rule: str = "rms") -> Fit:
+    """The gain of `rule` for `net` on garment `g` at crop `side` (the evaluation crop). Raises CalibrationError."""
+    if rule not in GAIN_RULES:
+        raise ValueError(f"relief rule must be one of {', '.join(GAIN_RULES)}; got {rule!r}")
+    found, n, _, _, tac = fit_inputs(net, g, side, "a relief gain")
     tac = tac[0].double().numpy()
     rr = pp = pr = 0.0
     for yy, xx, gx, gy in found:

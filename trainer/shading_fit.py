@@ -16,11 +16,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from trainer.augment import eval_crop_origin
-from trainer.calibration import MIN_PIXELS, CalibrationError, touch_pixels
+from trainer.calibration import CalibrationError, fit_inputs
 from trainer.data.touchclothing import Garment
 from trainer.models.shading_relief import ShadingRelief, filter_bank, shading_slopes
-from trainer.sampling import crop_tensors
 
 RIDGE = 0.1   # per sample, on columns scaled to unit RMS
 TINY = 1e-8   # a column below this RMS (a flat photo or a flat model) is left out of the fit
@@ -69,14 +67,7 @@ def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE, flo
                 ) -> ShadingFit:
     """The shading relief of `net` on garment `g` at crop `side`. Raises CalibrationError (too few touch pixels,
     or a model and photo with no relief to weigh)."""
-    origin = eval_crop_origin(g.mask, side)
-    found = touch_pixels(g, origin, side)
-    n = sum(len(f[0]) for f in found)
-    if n < MIN_PIXELS:
-        raise CalibrationError(f"{g.name}: {n} training-touch contact pixels inside the {side} px evaluation crop "
-                               f"(at least {MIN_PIXELS} are needed to fit a shading relief)")
-    sketch, mask, _ = crop_tensors(g, origin, side)
-    vis, tac = net(sketch, mask)
+    found, n, mask, vis, tac = fit_inputs(net, g, side, "a shading relief")
     bank = filter_bank()
     feats = shading_slopes(vis.float(), mask, torch.from_numpy(bank))[0].double().numpy()
     tac = tac[0].double().numpy()

@@ -15,19 +15,10 @@ from torch import nn
 from trainer.augment import eval_crop_origin
 from trainer.calibration import GAIN_RANGE, CalibrationError, fit_relief_gain, touch_pixels
 from trainer.compare import RunSpec, parse_labelled, parse_run
-from trainer.data.synthetic import generate_dataset
-from trainer.data.touchclothing import load_garment
 from trainer.eval_cache import _paths, cache_key
 from trainer.models.relief_gain import ReliefGain
 
 SIDE = 256
-
-
-@pytest.fixture(scope="module")
-def garment(tmp_path_factory):
-    root = tmp_path_factory.mktemp("calib")
-    generate_dataset(root, garments=1, seed=0, frame=(192, 144), progress=False, profile="easy")
-    return load_garment(next(p for p in root.iterdir() if p.is_dir()))
 
 
 class FieldNet(nn.Module):
@@ -50,8 +41,8 @@ def touch_field(g, split="train", scale=1.0, noise=0.0, seed=0):
     return f * scale + np.random.default_rng(seed).normal(0, noise, f.shape)
 
 
-def test_the_touches_in_the_crop_are_found(garment):
-    found = touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE)
+def test_the_touches_in_the_crop_are_found(easy_garment):
+    found = touch_pixels(easy_garment, eval_crop_origin(easy_garment.mask, SIDE), SIDE)
     assert found and sum(len(f[0]) for f in found) > 256
     for yy, xx, gx, gy in found:
         assert len(yy) == len(xx) == len(gx) == len(gy) and yy.min() >= 0 and xx.max() < SIDE
@@ -59,34 +50,34 @@ def test_the_touches_in_the_crop_are_found(garment):
 
 @settings(max_examples=15, deadline=None)
 @given(shrink=st.floats(0.3, 3.0))
-def test_a_known_shrink_is_undone_exactly_by_both_rules(garment, shrink):
-    net = FieldNet(touch_field(garment, scale=shrink))
+def test_a_known_shrink_is_undone_exactly_by_both_rules(easy_garment, shrink):
+    net = FieldNet(touch_field(easy_garment, scale=shrink))
     for rule in ("rms", "ls"):
-        fit = fit_relief_gain(net, garment, SIDE, rule)
+        fit = fit_relief_gain(net, easy_garment, SIDE, rule)
         # exact but for the few pixels where two touches overlap (the field holds one of their two readings)
         assert fit.gain == pytest.approx(1.0 / shrink, rel=1e-3)
         assert fit.rule == rule and fit.touches >= 1
 
 
-def test_misplaced_bumps_get_a_smaller_least_squares_gain(garment):
+def test_misplaced_bumps_get_a_smaller_least_squares_gain(easy_garment):
     """Noise of the touches' own strength, uncorrelated with them: rms keeps the energy, ls discounts it."""
-    f = touch_field(garment)
+    f = touch_field(easy_garment)
     rms = float(np.sqrt(np.mean(f[f != 0] ** 2)))
-    net = FieldNet(touch_field(garment, scale=0.5, noise=0.5 * rms, seed=3))
-    g_rms = fit_relief_gain(net, garment, SIDE, "rms").gain
-    g_ls = fit_relief_gain(net, garment, SIDE, "ls").gain
+    net = FieldNet(touch_field(easy_garment, scale=0.5, noise=0.5 * rms, seed=3))
+    g_rms = fit_relief_gain(net, easy_garment, SIDE, "rms").gain
+    g_ls = fit_relief_gain(net, easy_garment, SIDE, "ls").gain
     assert g_ls < g_rms and 1.0 < g_rms < 2.0
 
 
 @settings(max_examples=15, deadline=None)
 @given(shrink=st.floats(0.3, 3.0), noise=st.floats(0.0, 0.5))
-def test_lift_is_the_least_squares_gain_floored_at_one(garment, shrink, noise):
+def test_lift_is_the_least_squares_gain_floored_at_one(easy_garment, shrink, noise):
     """It gives a shrunken relief its strength back as ls does, and where ls would flatten it (a relief too strong,
     or bumps misplaced) it leaves it as trained."""
-    f = touch_field(garment)
+    f = touch_field(easy_garment)
     rms = float(np.sqrt(np.mean(f[f != 0] ** 2)))
-    net = FieldNet(touch_field(garment, scale=shrink, noise=noise * rms, seed=3))
-    ls, lift = fit_relief_gain(net, garment, SIDE, "ls"), fit_relief_gain(net, garment, SIDE, "lift")
+    net = FieldNet(touch_field(easy_garment, scale=shrink, noise=noise * rms, seed=3))
+    ls, lift = fit_relief_gain(net, easy_garment, SIDE, "ls"), fit_relief_gain(net, easy_garment, SIDE, "lift")
     assert lift.rule == "lift" and (lift.pixels, lift.touches) == (ls.pixels, ls.touches)
     assert lift.gain == max(ls.gain, 1.0)
     if shrink < 0.9 and noise == 0.0:
@@ -95,50 +86,50 @@ def test_lift_is_the_least_squares_gain_floored_at_one(garment, shrink, noise):
         assert lift.gain == 1.0
 
 
-def test_only_training_touches_are_read(garment):
+def test_only_training_touches_are_read(easy_garment):
     """Two models that agree on the training touches' pixels and nowhere else (not on the held-out touches either)
     get the same gain."""
-    base = touch_field(garment, scale=0.7)
+    base = touch_field(easy_garment, scale=0.7)
     seen = np.zeros((SIDE, SIDE), bool)
-    for yy, xx, _, _ in touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE, "train"):
+    for yy, xx, _, _ in touch_pixels(easy_garment, eval_crop_origin(easy_garment.mask, SIDE), SIDE, "train"):
         seen[yy, xx] = True
     other = np.where(seen, base, np.random.default_rng(5).normal(0, 3.0, base.shape))
     assert np.abs(other - base).max() > 1.0
     for rule in ("rms", "ls"):
-        assert fit_relief_gain(FieldNet(other), garment, SIDE, rule).gain == \
-            pytest.approx(fit_relief_gain(FieldNet(base), garment, SIDE, rule).gain, rel=1e-9)
+        assert fit_relief_gain(FieldNet(other), easy_garment, SIDE, rule).gain == \
+            pytest.approx(fit_relief_gain(FieldNet(base), easy_garment, SIDE, rule).gain, rel=1e-9)
 
 
 @pytest.mark.parametrize("rule", ["rms", "ls", "lift"])
-def test_a_flat_model_is_refused_without_dividing_by_zero(garment, rule):
+def test_a_flat_model_is_refused_without_dividing_by_zero(easy_garment, rule):
     with np.errstate(all="raise"):
         with pytest.raises(CalibrationError, match="undefined"):
-            fit_relief_gain(FieldNet(np.zeros((2, SIDE, SIDE))), garment, SIDE, rule)
+            fit_relief_gain(FieldNet(np.zeros((2, SIDE, SIDE))), easy_garment, SIDE, rule)
 
 
-def test_a_gain_beyond_the_range_is_refused(garment):
-    net = FieldNet(touch_field(garment, scale=1.0 / (GAIN_RANGE[1] * 1.5)))
+def test_a_gain_beyond_the_range_is_refused(easy_garment):
+    net = FieldNet(touch_field(easy_garment, scale=1.0 / (GAIN_RANGE[1] * 1.5)))
     with pytest.raises(CalibrationError, match="outside"):
-        fit_relief_gain(net, garment, SIDE, "rms")
+        fit_relief_gain(net, easy_garment, SIDE, "rms")
 
 
-def test_anti_correlated_relief_gets_no_least_squares_gain(garment):
+def test_anti_correlated_relief_gets_no_least_squares_gain(easy_garment):
     with pytest.raises(CalibrationError, match="outside"):
-        fit_relief_gain(FieldNet(touch_field(garment, scale=-1.0)), garment, SIDE, "ls")
+        fit_relief_gain(FieldNet(touch_field(easy_garment, scale=-1.0)), easy_garment, SIDE, "ls")
 
 
-def test_no_touches_in_the_crop_is_refused(garment):
-    bare = type(garment).__new__(type(garment))
-    bare.__dict__.update(garment.__dict__)
-    bare.touches = {**garment.touches, "train": []}
+def test_no_touches_in_the_crop_is_refused(easy_garment):
+    bare = type(easy_garment).__new__(type(easy_garment))
+    bare.__dict__.update(easy_garment.__dict__)
+    bare.touches = {**easy_garment.touches, "train": []}
     with pytest.raises(CalibrationError, match="contact pixels"):
-        fit_relief_gain(FieldNet(touch_field(garment)), bare, SIDE, "rms")
+        fit_relief_gain(FieldNet(touch_field(easy_garment)), bare, SIDE, "rms")
 
 
-def test_unknown_rule_is_an_error(garment):
+def test_unknown_rule_is_an_error(easy_garment):
     for rule in ("none", "max"):
         with pytest.raises(ValueError, match="relief rule"):
-            fit_relief_gain(FieldNet(touch_field(garment)), garment, SIDE, rule)
+            fit_relief_gain(FieldNet(touch_field(easy_garment)), easy_garment, SIDE, rule)
 
 
 def test_the_wrapper_scales_the_tactile_output_of_every_kind_only():

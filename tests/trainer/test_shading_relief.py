@@ -1,5 +1,5 @@
 """The shading relief (trainer/shading_fit.py, trainer/models/shading_relief.py): read from a photo lit like the
-garment, it finds relief the model never had off the touches; its weights come from the training touches only; it
+easy_garment, it finds relief the model never had off the touches; its weights come from the training touches only; it
 never divides by a data-dependent zero; the wrapper keeps every graph kind's contract."""
 from __future__ import annotations
 
@@ -12,8 +12,6 @@ from hypothesis import strategies as st
 
 from trainer.augment import eval_crop_origin
 from trainer.calibration import CalibrationError, touch_pixels
-from trainer.data.synthetic import generate_dataset
-from trainer.data.touchclothing import load_garment
 from trainer.metrics import angle_map
 from trainer.models.shading_relief import ShadingRelief, filter_bank, log_luminance, shading_slopes
 from trainer.relief import calibrate
@@ -21,14 +19,6 @@ from trainer.sampling import crop_tensors
 from trainer.shading_fit import fit_shading, solve
 
 SIDE = 256
-
-
-@pytest.fixture(scope="module")
-def garment(tmp_path_factory):
-    """The easy profile: its photo is Lambert shading of the touch field itself, so shading holds the relief."""
-    root = tmp_path_factory.mktemp("shade")
-    generate_dataset(root, garments=1, seed=0, frame=(192, 144), progress=False, profile="easy")
-    return load_garment(next(p for p in root.iterdir() if p.is_dir()))
 
 
 class PhotoNet(torch.nn.Module):
@@ -81,61 +71,61 @@ def _shaded_outside(g, net) -> tuple[float, object]:
     return _outside_angle(g, tac[0], tac[1]), fit
 
 
-def test_the_photo_gives_back_the_fine_relief_a_coarse_model_lacks(garment):
+def test_the_photo_gives_back_the_fine_relief_a_coarse_model_lacks(easy_garment):
     """The garment's own photo beside a model with no fine relief: fitted on the training touches only, the mix is
     nearer the truth off those touches than the model alone, by a margin (measured: 8.9 -> 6.0 deg)."""
-    coarse = _coarse_truth(garment)
-    net = PhotoNet(garment, coarse)
-    shaded, fit = _shaded_outside(garment, net)
-    assert shaded < 0.8 * _outside_angle(garment, coarse[0], coarse[1])
+    coarse = _coarse_truth(easy_garment)
+    net = PhotoNet(easy_garment, coarse)
+    shaded, fit = _shaded_outside(easy_garment, net)
+    assert shaded < 0.8 * _outside_angle(easy_garment, coarse[0], coarse[1])
     assert fit.touches >= 1 and fit.pixels >= 256 and len(fit.weights) == len(filter_bank())
 
 
 @settings(max_examples=6, deadline=None)
 @given(light=st.floats(0.0, 2 * np.pi))
-def test_a_photo_lit_from_any_side_is_integrated_back(garment, light):
+def test_a_photo_lit_from_any_side_is_integrated_back(easy_garment, light):
     """A photo that is exactly the relief's shading under a lamp from direction `light`: the filters' directions and
     weights find it whatever the lamp's side (measured over 48 directions: 8.9 -> 2.7-5.2 deg)."""
-    coarse = _coarse_truth(garment)
-    x, y = eval_crop_origin(garment.mask, SIDE)
-    ft = garment.full_tactile
+    coarse = _coarse_truth(easy_garment)
+    x, y = eval_crop_origin(easy_garment.mask, SIDE)
+    ft = easy_garment.full_tactile
     gx, gy = (a[y:y + SIDE, x:x + SIDE].astype(np.float64) for a in (ft.gx, ft.gy))
     lit = 0.5 * np.exp(-0.3 * (np.cos(light) * gx + np.sin(light) * gy))
-    net = PhotoNet(garment, coarse)
+    net = PhotoNet(easy_garment, coarse)
     net.vis = torch.from_numpy(np.clip(2 * lit - 1, -1, 1).astype(np.float32))[None, None].repeat(1, 3, 1, 1)
     net.vis = net.vis * net.mask
-    shaded, _ = _shaded_outside(garment, net)
-    assert shaded < 0.65 * _outside_angle(garment, coarse[0], coarse[1])
+    shaded, _ = _shaded_outside(easy_garment, net)
+    assert shaded < 0.65 * _outside_angle(easy_garment, coarse[0], coarse[1])
 
 
-def test_only_training_touches_are_read(garment):
+def test_only_training_touches_are_read(easy_garment):
     """Two models that agree on the training touches' pixels and nowhere else get the same weights."""
     rng = np.random.default_rng(5)
-    base = touch_field(garment, scale=0.5, noise=0.05, seed=5)
+    base = touch_field(easy_garment, scale=0.5, noise=0.05, seed=5)
     seen = np.zeros((SIDE, SIDE), bool)
-    for yy, xx, _, _ in touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE, "train"):
+    for yy, xx, _, _ in touch_pixels(easy_garment, eval_crop_origin(easy_garment.mask, SIDE), SIDE, "train"):
         seen[yy, xx] = True
     other = np.where(seen, base, rng.normal(0, 1.0, base.shape))
-    a, b = fit_shading(PhotoNet(garment, base), garment, SIDE), fit_shading(PhotoNet(garment, other), garment, SIDE)
+    a, b = fit_shading(PhotoNet(easy_garment, base), easy_garment, SIDE), fit_shading(PhotoNet(easy_garment, other), easy_garment, SIDE)
     assert a.model_weight == pytest.approx(b.model_weight, rel=1e-6)
     assert np.allclose(a.weights, b.weights, rtol=1e-5, atol=1e-9)
 
 
-def test_no_touches_or_an_unrelated_model_is_refused(garment):
-    bare = type(garment).__new__(type(garment))
-    bare.__dict__.update(garment.__dict__)
-    bare.touches = {**garment.touches, "train": []}
+def test_no_touches_or_an_unrelated_model_is_refused(easy_garment):
+    bare = type(easy_garment).__new__(type(easy_garment))
+    bare.__dict__.update(easy_garment.__dict__)
+    bare.touches = {**easy_garment.touches, "train": []}
     with pytest.raises(CalibrationError, match="contact pixels"):
-        fit_shading(PhotoNet(garment, touch_field(garment)), bare, SIDE)
+        fit_shading(PhotoNet(easy_garment, touch_field(easy_garment)), bare, SIDE)
     with pytest.raises(CalibrationError, match="unrelated"):   # a flat model has no relief to weigh
-        fit_shading(PhotoNet(garment, np.zeros((2, SIDE, SIDE))), garment, SIDE)
+        fit_shading(PhotoNet(easy_garment, np.zeros((2, SIDE, SIDE))), easy_garment, SIDE)
     # the model's relief is the touches' upside down: it would get a negative weight
     anti = np.zeros((2, SIDE, SIDE))
-    for yy, xx, gx, gy in touch_pixels(garment, eval_crop_origin(garment.mask, SIDE), SIDE, "train"):
+    for yy, xx, gx, gy in touch_pixels(easy_garment, eval_crop_origin(easy_garment.mask, SIDE), SIDE, "train"):
         anti[0, yy, xx], anti[1, yy, xx] = -gx, -gy
     for floor in (None, 1.0):   # shade-lift too: the weight is judged before the floor lifts it
         with pytest.raises(CalibrationError, match="unrelated"):
-            fit_shading(PhotoNet(garment, anti), garment, SIDE, floor=floor)
+            fit_shading(PhotoNet(easy_garment, anti), easy_garment, SIDE, floor=floor)
 
 
 @settings(max_examples=25, deadline=None)
@@ -179,9 +169,9 @@ def test_the_bank_is_finite_odd_and_zero_mean():
     assert np.isfinite(bank).all() and np.abs(bank.sum((2, 3))).max() < 1e-3 * np.abs(bank).sum((2, 3)).max()
 
 
-def test_the_wrapper_keeps_each_graph_kind_and_rejects_bad_kernels(garment):
-    net = PhotoNet(garment, touch_field(garment, scale=0.5, noise=0.05))
-    fit = fit_shading(net, garment, SIDE)
+def test_the_wrapper_keeps_each_graph_kind_and_rejects_bad_kernels(easy_garment):
+    net = PhotoNet(easy_garment, touch_field(easy_garment, scale=0.5, noise=0.05))
+    fit = fit_shading(net, easy_garment, SIDE)
     wrapped = fit.wrap(net)
     with torch.no_grad():
         vis, tac = wrapped(net.vis, net.mask, "full")
@@ -196,12 +186,12 @@ def test_the_wrapper_keeps_each_graph_kind_and_rejects_bad_kernels(garment):
         ShadingRelief(net, float("inf"), np.zeros((2, 5, 5)))
 
 
-def test_calibrate_names_the_rule_and_its_fit(garment):
-    net = PhotoNet(garment, touch_field(garment, scale=0.5, noise=0.05, seed=1))
-    wrapped, info, line = calibrate(net, garment, SIDE, "shade")
+def test_calibrate_names_the_rule_and_its_fit(easy_garment):
+    net = PhotoNet(easy_garment, touch_field(easy_garment, scale=0.5, noise=0.05, seed=1))
+    wrapped, info, line = calibrate(net, easy_garment, SIDE, "shade")
     assert isinstance(wrapped, ShadingRelief) and info["rule"] == "shade" and line.startswith("shade: model x")
     with pytest.raises(ValueError, match="relief rule"):
-        calibrate(net, garment, SIDE, "none")
+        calibrate(net, easy_garment, SIDE, "none")
 
 
 @settings(max_examples=25, deadline=None)
@@ -223,10 +213,10 @@ def test_a_floored_model_weight_never_falls_below_the_floor(n, k, model, seed):
         assert np.allclose(floored[1:], rest[1:])
 
 
-def test_shade_lift_names_itself_and_keeps_the_relief_at_full_strength(garment):
+def test_shade_lift_names_itself_and_keeps_the_relief_at_full_strength(easy_garment):
     """A model whose relief is twice the touches' would get weight 1/2 under `shade`; `shade-lift` keeps 1."""
-    net = PhotoNet(garment, touch_field(garment, scale=2.0))
-    _, free, _ = calibrate(net, garment, SIDE, "shade")
-    wrapped, info, line = calibrate(net, garment, SIDE, "shade-lift")
+    net = PhotoNet(easy_garment, touch_field(easy_garment, scale=2.0))
+    _, free, _ = calibrate(net, easy_garment, SIDE, "shade")
+    wrapped, info, line = calibrate(net, easy_garment, SIDE, "shade-lift")
     assert free["model_weight"] < 0.9 and info["model_weight"] == 1.0
     assert info["rule"] == "shade-lift" and line.startswith("shade-lift: model x1.0000")
