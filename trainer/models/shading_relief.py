@@ -84,7 +84,8 @@ def log_luminance(visual: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 def shading_slopes(visual: torch.Tensor, mask: torch.Tensor, bank: torch.Tensor) -> torch.Tensor:
-    """(N, 2 * F, H, W): each filter's (gx, gy) of the visual's log-luminance, 0 off the object."""
+    """(N, C, H, W): each filter's output on the visual's log-luminance, 0 off the object. `bank` is (F, 2, K, K)
+    (C = 2F: every filter's gx, gy) or (C, 1, K, K)."""
     lum = log_luminance(visual, mask)
     r = bank.shape[-1] // 2
     out = F.conv2d(F.pad(lum, (r, r, r, r), mode="replicate"), bank.reshape(-1, 1, *bank.shape[-2:]))
@@ -106,12 +107,11 @@ class ShadingRelief(nn.Module):
         self.register_buffer("kernel", torch.from_numpy(kernel)[:, None])
 
     def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
+        if kind == "visual":   # no relief asked for: the visual head alone
+            return self.generator(sketch, mask, kind)
         names = GRAPH_OUTPUTS[kind]
         # the photo is needed for the relief: a tactile-only graph still runs the visual head
         vis, tac = self.generator(sketch, mask, "full")
-        r = self.kernel.shape[-1] // 2
-        lum = log_luminance(vis, mask)
-        photo = F.conv2d(F.pad(lum, (r, r, r, r), mode="replicate"), self.kernel)
-        tac = (self.model_weight * tac + photo) * (mask > 0.5).to(tac.dtype)
+        tac = self.model_weight * tac * (mask > 0.5).to(tac.dtype) + shading_slopes(vis, mask, self.kernel)
         outs = tuple({"visual": vis, "tactile": tac}[n] for n in names)
         return outs if len(outs) > 1 else outs[0]
