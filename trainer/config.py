@@ -120,6 +120,9 @@ class LossConfig:
     diffaug: str = field(default="color,translation,cutout", metadata={"empty_ok": True})
     # Texture-statistics loss on tactile patches (trainer/recipe/texture.py): filter-bank mean + covariance match.
     tactile_texture: float = 0.0
+    # Weave-scale visual loss (trainer/recipe/weave.py): L1 between the fine log-luminance bands of the generated and
+    # the real photo, the bands the shading relief reads (`--relief shade`); 0 = off.
+    visual_weave: float = 0.0
     # Registration-tolerant touches (trainer/recipe/registration.py): every tactile term sees the generated relief at
     # the best integer shift within this many px of where each patch was recorded; 0 = at the recorded corner.
     tactile_shift: int = 0
@@ -258,6 +261,8 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError("train.ema_probe_ramp needs train.ema (the probe shares its decay cap)")
     if not 0 <= cfg.loss.tactile_shift <= 8:
         raise ConfigError(f"loss.tactile_shift is a shift radius in px, 0..8; got {cfg.loss.tactile_shift}")
+    if cfg.loss.visual_weave < 0:
+        raise ConfigError(f"loss.visual_weave must be >= 0; got {cfg.loss.visual_weave}")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
     for key in ("transpose", "flip"):

@@ -23,6 +23,7 @@ from trainer.models.generator import TwoBranchUNet
 from trainer.recipe.diffaug import DiffAugment
 from trainer.recipe.registration import best_shift_patches
 from trainer.recipe.texture import TextureStatsLoss
+from trainer.recipe.weave import weave_loss
 from trainer.sampling import PATCH, Batch, cut
 
 
@@ -158,6 +159,8 @@ class Ours(Method):
         visual_on = self.trains_visual(batch)
         if self.visual_rec and visual_on:
             out["v_l1"] = lc.visual_l1 * F.l1_loss(visual_fake, batch.visual)
+            if lc.visual_weave:
+                out["v_weave"] = lc.visual_weave * weave_loss(visual_fake, batch.visual, batch.mask)
             if lc.visual_perceptual:
                 out["v_perc"] = lc.visual_perceptual * self.perceptual(visual_fake, batch.visual)
         if self.visual_gan and visual_on:

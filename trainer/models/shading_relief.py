@@ -66,20 +66,26 @@ def _gauss(sigma: float) -> torch.Tensor:
     return g / g.sum()
 
 
-def log_luminance(visual: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """(N, 1, H, W): the visual output's log-luminance on the object, its background filled from the object."""
+def blur(a: torch.Tensor, sigma: float) -> torch.Tensor:
+    """A separable Gaussian blur of (N, 1, H, W), edges replicated."""
+    g = _gauss(sigma).to(a)
+    r = g.numel() // 2
+    a = F.conv2d(F.pad(a, (r, r, 0, 0), mode="replicate"), g.view(1, 1, 1, -1))
+    return F.conv2d(F.pad(a, (0, 0, r, r), mode="replicate"), g.view(1, 1, -1, 1))
+
+
+def log_luma(visual: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W): the log-luminance of a [-1, 1] RGB image, finite for black pixels."""
     rgb = ((visual + 1.0) * 0.5).clamp(FLOOR, 1.0)
     w = torch.tensor(LUMA, dtype=visual.dtype, device=visual.device).view(1, 3, 1, 1)
-    lum = torch.log((rgb * w).sum(1, keepdim=True).clamp_min(FLOOR))
-    g = _gauss(FILL_SIGMA).to(visual)
-    r = g.numel() // 2
+    return torch.log((rgb * w).sum(1, keepdim=True).clamp_min(FLOOR))
 
-    def blur(a):
-        a = F.conv2d(F.pad(a, (r, r, 0, 0), mode="replicate"), g.view(1, 1, 1, -1))
-        return F.conv2d(F.pad(a, (0, 0, r, r), mode="replicate"), g.view(1, 1, -1, 1))
 
+def log_luminance(visual: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W): the visual output's log-luminance on the object, its background filled from the object."""
+    lum = log_luma(visual)
     m = (mask > 0.5).to(visual.dtype)
-    filled = blur(lum * m) / blur(m).clamp_min(1e-3)   # far from any object pixel: 0, harmless (masked later)
+    filled = blur(lum * m, FILL_SIGMA) / blur(m, FILL_SIGMA).clamp_min(1e-3)   # far from any object pixel: 0, harmless (masked later)
     return lum * m + filled * (1 - m)
 
 
