@@ -15,7 +15,7 @@ from torch import nn
 from trainer.augment import eval_crop_origin
 from trainer.calibration import GAIN_RANGE, CalibrationError, fit_relief_gain, touch_pixels
 from trainer.compare import RunSpec, parse_labelled, parse_run
-from trainer.eval_cache import _paths, cache_key
+from trainer.eval_cache import _paths
 from trainer.models.relief_gain import ReliefGain
 
 SIDE = 256
