@@ -6,7 +6,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 from vtkiosk import demo
 from vtkiosk.catalogue import CATALOGUE, load_index
 
