@@ -32,6 +32,8 @@ from trainer.compare import report  # noqa: E402
 from trainer.evaluate import evaluate  # noqa: E402
 from trainer.models import shading_relief as sr  # noqa: E402
 
+OWN_SIGMA = sr.FILL_SIGMA   # the module's own fill, before any is swapped in
+
 
 def mean_fill(visual: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """The object's mean log-luminance in the background (0 for an image with no object)."""
@@ -94,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             timing[label] = slopes_ms()
             for run in a.runs:
                 print(f"{label}: {run}", flush=True)
-                if f != "mean" and float(f) == sr.FILL_SIGMA:   # the module's own: through the cache
+                if f != "mean" and float(f) == OWN_SIGMA:   # the module's own: through the cache
                     e = eval_cache.scored(run, a.which, relief=a.relief, mirrors=a.mirrors, unseen_from=a.unseen_from)
                 else:
                     e = evaluate(run, a.which, swap=False, relief=a.relief, mirrors=a.mirrors,
