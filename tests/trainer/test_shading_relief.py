@@ -162,6 +162,19 @@ def test_the_photo_term_is_finite_on_black_white_and_empty_inputs(level, hole, s
     assert (out * (1 - mask) == 0).all()
 
 
+@settings(max_examples=20, deadline=None)
+@given(level=st.floats(-0.95, 0.95), seed=st.integers(0, 1000))
+def test_a_uniform_object_of_any_shape_and_brightness_reads_no_slope_at_its_silhouette(level, seed):
+    """The fill reaches as far as the filters do: a silhouette is no cliff (KERNEL and FILL_SIGMA kept in step), and
+    what lies on the background never reaches the object."""
+    rng = np.random.default_rng(seed)
+    mask = torch.from_numpy(cv2.GaussianBlur(rng.random((64, 64)), (0, 0), 4.0) > 0.5).float()[None, None]
+    vis = torch.full((1, 3, 64, 64), level)
+    vis = vis * mask + torch.from_numpy(rng.uniform(-1, 1, (1, 3, 64, 64)).astype(np.float32)) * (1 - mask)
+    out = shading_slopes(vis, mask, torch.from_numpy(filter_bank()))
+    assert out.abs().max() < 1e-4
+
+
 def test_the_bank_is_finite_odd_and_zero_mean():
     """Zero mean: a photo's uniform brightness (the lamp's level, the dye's shade) is no slope."""
     bank = filter_bank()

@@ -28,7 +28,10 @@ BANDS = ((0.7, 1.5), (1.5, 3.0))
 DIRECTIONS = 4            # integration directions over the half circle
 REGULARISE = 1.0          # k.u^2 + REGULARISE |k|^2: the integral stays finite across the light
 KERNEL = 11               # filter support (px): 31, 21, 15 and 11 score alike (11 best by <0.05 deg), 11 is 8x cheaper
-FILL_SIGMA = 8.0          # the background filled from the object within about this distance
+# The background filled from the object within about 3 x this (px): it need reach only as far as the filters do
+# (KERNEL // 2; at 2 px it falls short on a diagonal). 8, 3 and 2 px score alike (docs/training.md "Shading relief"):
+# 3 is 19 taps a pass against 49.
+FILL_SIGMA = 3.0
 LUMA = (0.299, 0.587, 0.114)
 FLOOR = 1e-3              # luminance floor before the log (a black pixel must not reach -inf)
 
@@ -85,7 +88,8 @@ def log_luminance(visual: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W): the visual output's log-luminance on the object, its background filled from the object."""
     lum = log_luma(visual)
     m = (mask > 0.5).to(visual.dtype)
-    filled = blur(lum * m, FILL_SIGMA) / blur(m, FILL_SIGMA).clamp_min(1e-3)   # far from any object pixel: 0, harmless (masked later)
+    # beyond the fill's reach: 0, harmless (beyond the filters' reach of the object too, and masked later)
+    filled = blur(lum * m, FILL_SIGMA) / blur(m, FILL_SIGMA).clamp_min(1e-3)
     return lum * m + filled * (1 - m)
 
 
