@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -104,11 +105,12 @@ def main(argv: list[str] | None = None) -> int:
                 e.result["trained_method"], e.result["method"] = e.result["method"], label
                 evals.append(e)
     md, data = report(evals, f"fill-{a.fills[0]}")
+    load = os.getloadavg()[0]   # the times are noise on a loaded machine: said beside them
     md += "\n\ntorch time of the slopes alone at 512 px (1 thread, median of 20, ms): " + ", ".join(
-        f"{k} {v:.1f}" for k, v in timing.items()) + "\n"
+        f"{k} {v:.1f}" for k, v in timing.items()) + f" (1-min load average {load:.2f} on {os.cpu_count()} CPUs)\n"
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "compare.md").write_text(md)
-    (a.out / "compare.json").write_text(json.dumps({**data, "slopes_ms": timing,
+    (a.out / "compare.json").write_text(json.dumps({**data, "slopes_ms": timing, "load_average": load,
                                                      "study_runs": [str(r) for r in a.runs]}, indent=2))
     print(md)
     return 0
