@@ -19,7 +19,6 @@ model's (gx and gy together: one gain keeps the slope's direction):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

@@ -43,14 +43,19 @@ class ShadingFit:
 def solve(columns: np.ndarray, target: np.ndarray, ridge: float = RIDGE, floor: float | None = None) -> np.ndarray:
     """Ridge least squares, column 0 (the model's relief) unshrunk. Columns below TINY RMS get weight 0. With
     `floor`, a model weight below it is held at it and the other weights refitted to what is left."""
-    if floor is not None:
-        w = solve(columns, target, ridge)
-        if w[0] >= floor:
-            return w
-        rest = solve(np.concatenate([np.zeros((len(target), 1)), columns[:, 1:]], 1),
-                     target - floor * columns[:, 0], ridge)
-        rest[0] = floor
-        return rest
+    w = _ridge(columns, target, ridge)
+    return w if floor is None or w[0] >= floor else _held(columns, target, floor, ridge)
+
+
+def _held(columns: np.ndarray, target: np.ndarray, model_weight: float, ridge: float) -> np.ndarray:
+    """The filters' weights refitted with the model's weight held at `model_weight`."""
+    rest = _ridge(np.concatenate([np.zeros((len(target), 1)), columns[:, 1:]], 1),
+                  target - model_weight * columns[:, 0], ridge)
+    rest[0] = model_weight
+    return rest
+
+
+def _ridge(columns: np.ndarray, target: np.ndarray, ridge: float) -> np.ndarray:
     rms = np.sqrt((columns * columns).mean(0))
     live = rms > TINY
     w = np.zeros(columns.shape[1])
@@ -81,7 +86,7 @@ def fit_shading(net: nn.Module, g: Garment, side: int, ridge: float = RIDGE, flo
     if not np.isfinite(w).all() or w[0] <= 0:   # judged before any floor, as `lift` judges the ls gain
         raise CalibrationError(f"{g.name}: the model's relief gets weight {w[0]:.3g} beside its photo's shading on "
                                "the training touches (unrelated to them); it is used as trained")
-    if floor is not None and w[0] < floor:
-        w = solve(a, target, ridge, floor)
+    if floor is not None and w[0] < floor:   # the free fit judged above is not solved again
+        w = _held(a, target, floor, ridge)
     kernel = np.tensordot(w[1:], bank, axes=1).astype(np.float32)
     return ShadingFit(float(w[0]), tuple(float(v) for v in w[1:]), kernel, n, len(found))
