@@ -23,7 +23,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import resource
 import time
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ import numpy as np
 
 from kiosk.bench.felt import contrast_steps, dominant_period_px, felt_scale
 from exporter.bench import haptics_map
+from exporter.bench.environment import environment
 from exporter.errors import ExportError
 from kiosk.contract.haptics import SUPERSAMPLE, calibrate_scale, friction_map, jnd_steps, perceptual_constants
 from kiosk.inference.render import compose, friction_texture
@@ -307,22 +307,6 @@ def _miss(r: dict) -> str:
     return f"{r['fabric']}@{r['panel_mm']}mm/{r['size']:g}x: {err} (oracle {oracle})"
 
 
-def _environment() -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-        flags = next((ln.split(":", 1)[1].split() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                      if ln.startswith("flags")), [])
-    except OSError:
-        flags = []
-    isa = [f for f in ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "amx_tile") if f in flags]
-    return {"cpu": cpu, "isa": isa, "logical_cpus": os.cpu_count(), "python": platform.python_version(),
-            "loadavg_start": list(os.getloadavg())}
-
-
 def latency(bundle_path: Path, grids: list[tuple[int, int]], runs: int) -> dict[str, dict]:
     """Tactile-graph latency of a real bundle at each grid (1 thread): median, p95, and the run-to-run spread."""
     import tempfile
@@ -378,7 +362,7 @@ def picture(rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: Pa
 
 
 def run_bench(args) -> dict:
-    env = _environment()
+    env = environment()
     t_start = time.perf_counter()
     fabrics = fabric_params(args.seed)
     cals = {p.name: calibrate(p, PITCH_MM, args.seed) for p in fabrics}
@@ -563,7 +547,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench haptics") -> int:
 
 
 def map_sweep(args) -> int:
-    env = _environment()
+    env = environment()
     rows = haptics_map.sweep(args.runs)
     result = {"environment": env, "runs": args.runs, "threads": 1, "rows": rows,
               "peak_rss_mib": haptics_map.peak_rss_mib(), "loadavg_end": list(os.getloadavg())}

@@ -17,7 +17,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import shlex
 import subprocess
 import sys
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from exporter.bench.bundle_bytes import bundle_layout, bundle_line
+from exporter.bench.environment import environment
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
 from exporter.bench.sources import BenchError, Candidate, build_sources, open_measured, portable, torch_available
 from exporter.shared_weights import graph_bytes
@@ -175,24 +175,11 @@ def _latency(res: dict) -> dict:
 
 def _environment() -> dict:
     import onnxruntime as ort
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    from kiosk.inference.cpu import describe
-    desc = describe()
-    env = {"cpu": cpu, "isa": desc["isa"], "isa_flags": desc["flags"], "arch": desc["arch"],
-           "logical_cpus": os.cpu_count(), "python": platform.python_version(),
-           "platform": platform.platform(), "onnxruntime": ort.__version__, "numpy": np.__version__,
-           "loadavg_start": list(os.getloadavg())}
+    versions = {"onnxruntime": ort.__version__}
     if torch_available():
         import torch
-        env["torch"] = torch.__version__
-    return env
+        versions["torch"] = torch.__version__
+    return environment(**versions)
 
 
 def _session(path: Path, provider: str, threads: int):

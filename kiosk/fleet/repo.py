@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -28,6 +27,7 @@ from tuf.api.serialization.json import JSONSerializer
 
 from kiosk.bundle.version import compare
 from kiosk.fleet import keys as rolekeys
+from kiosk.fleet.atomic import atomic_write
 from kiosk.fleet.layout import (CHANNELS, FleetError, Release, check_channel, check_rollout, index_bytes, index_path,
                                 release_from_custom, target_path)
 
@@ -40,21 +40,6 @@ _VERSIONED = re.compile(r"\A([1-9][0-9]{0,9})\.([a-z]+)\.json\Z")
 
 def _utc_now() -> datetime:
     return datetime.now(timezone.utc).replace(microsecond=0)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 @dataclass(frozen=True)
@@ -150,7 +135,7 @@ class FleetRepository:
         for i, signer in enumerate(signers):
             md.sign(signer, append=i > 0)
         data = md.to_bytes(self._serializer)
-        _atomic_write(self._path(role, md.signed.version), data)
+        atomic_write(self._path(role, md.signed.version), data)
         return data
 
     def _metafile(self, role: str, data: bytes, version: int) -> MetaFile:
@@ -218,7 +203,7 @@ class FleetRepository:
         folder, _, name = path.rpartition("/")
         dest = self.targets_dir / folder / f"{info.hashes['sha256']}.{name}"
         if not dest.exists():
-            _atomic_write(dest, data)
+            atomic_write(dest, data)
         return info
 
     def _edit_channel(self, channel: str, change) -> Release:

@@ -85,3 +85,22 @@ def demo_build(tmp_path_factory, steps: int = 2) -> tuple[Path, Path, str]:
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (bundle,) = sorted((workdir / "bundles").glob("*/demo.vtb"))
     return bundle, workdir / "trusted-keys", proc.stdout
+
+
+def demo_and_coat_daemon(tmp_path_factory, label: str) -> KioskDaemon:
+    """A daemon serving two garments, so the page has a catalogue to switch: the trained demo bundle and a
+    factory-made "Test coat", each signed by its own key and both keys trusted."""
+    import shutil
+
+    from tests.kiosk.bundle_factory import base_manifest, make_bundle
+
+    bundle, trusted, _ = demo_build(tmp_path_factory)
+    tmp = tmp_path_factory.mktemp(label)
+    other, other_trusted = make_bundle(tmp, manifest=base_manifest(garment_id="test-coat", display_name="Test coat"))
+    keys = tmp / "all-trusted"
+    keys.mkdir()
+    for folder in (trusted, other_trusted):
+        for pub in folder.glob("*.pub"):
+            shutil.copy(pub, keys / f"{folder.parent.name}-{pub.name}")
+    return start_daemon([bundle, other], keys)
+

@@ -4,13 +4,12 @@ they were drawn, and the device commits the matching friction frame exactly unde
 (Draw/Feel modes, second fingers, taps, the store loop) is in test_page_touch.py."""
 from __future__ import annotations
 
-import shutil
 
 import numpy as np
 import pytest
 
-from tests.kiosk.bundle_factory import base_manifest, make_bundle
-from tests.kiosk.daemon_fixtures import demo_build, start_daemon, wait_for
+from tests.kiosk.browser import headless_chromium
+from tests.kiosk.daemon_fixtures import demo_and_coat_daemon, wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 playwright = pytest.importorskip("playwright.sync_api")
@@ -22,15 +21,7 @@ DETAIL = [(520, 330), (760, 330)]
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    bundle, trusted, _ = demo_build(tmp_path_factory)
-    tmp = tmp_path_factory.mktemp("page")
-    other, other_trusted = make_bundle(tmp, manifest=base_manifest(garment_id="test-coat", display_name="Test coat"))
-    keys = tmp / "all-trusted"
-    keys.mkdir()
-    for folder in (trusted, other_trusted):
-        for pub in folder.glob("*.pub"):
-            shutil.copy(pub, keys / f"{folder.parent.name}-{pub.name}")
-    d = start_daemon([bundle, other], keys)
+    d = demo_and_coat_daemon(tmp_path_factory, "page")
     yield d
     d.stop()
 
@@ -38,7 +29,7 @@ def daemon(tmp_path_factory):
 @pytest.fixture(scope="module")
 def browser():
     with playwright.sync_playwright() as p:
-        b = p.chromium.launch(executable_path="/usr/bin/chromium", headless=True)
+        b = headless_chromium(p)
         yield b
         b.close()
 

@@ -11,6 +11,8 @@ from kiosk.study.log import read_log
 from kiosk.study.runtime import StudyRuntime, control_socket_of
 from kiosk.study.schedule import make_schedule
 
+from tests.kiosk.browser import headless_chromium
+
 from .conftest import write_study
 from .driver import operator
 
@@ -26,7 +28,7 @@ def test_page_shows_trial_and_records_taps(tmp_path, study_env):
         assert operator(sock, "study.start", participant="P11")["ok"]
         schedule = make_schedule(cfg, "P11")
         with playwright.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", headless=True)
+            browser = headless_chromium(pw)
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.goto(rt.url)
             page.wait_for_function("!document.getElementById('choose-left').disabled", timeout=20000)

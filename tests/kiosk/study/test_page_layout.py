@@ -12,6 +12,8 @@ from kiosk.study.config import load_study_config
 from kiosk.study.log import read_log
 from kiosk.study.runtime import StudyRuntime, control_socket_of
 
+from tests.kiosk.browser import headless_chromium
+
 from .conftest import write_study
 from .driver import operator
 
@@ -36,7 +38,7 @@ def test_page_stages_layout_and_console(tmp_path, study_env):
     try:
         sock = control_socket_of(cfg)
         with playwright.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", headless=True)
+            browser = headless_chromium(pw)
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
             page.on("pageerror", lambda e: problems.append(f"page error: {e}"))

@@ -14,6 +14,8 @@ from kiosk.study.log import read_log, replay
 from kiosk.study.report import report_log
 from kiosk.study.schedule import make_schedule
 
+from tests.kiosk.browser import headless_chromium
+
 from .conftest import write_study
 from .simulate import ROOT
 
@@ -36,7 +38,7 @@ def test_exported_page_writes_the_kiosks_log_records(tmp_path, study_env):
     schedule = make_schedule(cfg, "W02")
     errors: list[str] = []
     with playwright.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", headless=True)
+        browser = headless_chromium(pw)
         page = browser.new_page(viewport={"width": 1280, "height": 800}, accept_downloads=True)
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         page.on("pageerror", lambda e: errors.append(str(e)))
