@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -308,13 +309,17 @@ class Prediction:
     """A run's outputs on its garment's evaluation crop (and on the unseen sketches), plus what scores them."""
 
     def __init__(self, run_dir: Path, which: str = "best", *, unseen: bool = True, weights: str = "average",
-                 relief: str = "none", mirrors: str = "none", unseen_from: Path | None = None):
+                 relief: str = "none", mirrors: str = "none", unseen_from: Path | None = None,
+                 members: Sequence[Path] = ()):
         self.run = Path(run_dir)
         self.net, self.info = load_generator(self.run, which, weights)
-        if mirrors != "none":  # trainer/models/mirror_average.py: before the calibration, which fits what it returns
-            self.net = MirrorAverage(self.net, mirrors).eval()
         ck = read_checkpoint(self.run, which)
         self.cfg = config_from_dict(ck["config"])
+        others = [self._member(Path(m), which, weights) for m in members]
+        if others and mirrors == "none":
+            raise CheckpointError("a seed ensemble is averaged by test-time mirroring: name a mirror mode too")
+        if mirrors != "none":  # trainer/models/mirror_average.py: before the calibration, which fits what it returns
+            self.net = MirrorAverage(self.net, mirrors, others).eval()
         garment_dir = Path(self.cfg.garment)
         if not garment_dir.is_dir():
             raise CheckpointError(f"{self.run}: its garment folder {garment_dir} is gone; cannot evaluate")
@@ -333,6 +338,15 @@ class Prediction:
         with torch.no_grad():
             self.vis, self.tac = self.net(self.ctx.sketch, self.ctx.mask)
             self.unseen = [self.net(u.sketch, u.mask) for u in self.ctx.unseen]
+
+    def _member(self, run: Path, which: str, weights: str) -> torch.nn.Module:
+        """Another seed's generator, for the ensemble: refused unless it is this run's garment and method."""
+        net, info = load_generator(run, which, weights)
+        cfg = config_from_dict(read_checkpoint(run, which)["config"])
+        if (info["method"], Path(cfg.garment).name, info["crop"]) != (
+                self.info["method"], Path(self.cfg.garment).name, self.info["crop"]):
+            raise CheckpointError(f"{run}: an ensemble's runs must share the garment, method and crop of {self.run}")
+        return net
 
     @property
     def g(self) -> Garment:
@@ -354,9 +368,11 @@ class Evaluation:
 
 def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: bool = True,
              weights: str = "average", relief: str = "none", mirrors: str = "none",
-             unseen_from: Path | None = None) -> Evaluation:
+             unseen_from: Path | None = None, members: Sequence[Path] = ()) -> Evaluation:
+    """`members`: other seeds' runs averaged with this one (Prediction); never cached (trainer/eval_cache.py keys
+    one run)."""
     p = Prediction(run_dir, which, unseen=unseen, weights=weights, relief=relief, mirrors=mirrors,
-                   unseen_from=unseen_from)
+                   unseen_from=unseen_from, members=members)
     ctx = p.ctx
     nets = Nets(p.cfg.pretrained)
     out: dict = {"method": p.info["method"], "garment": p.g.name, "step": p.info["step"], "crop": ctx.side,
@@ -367,6 +383,8 @@ def evaluate(run_dir: Path, which: str = "best", *, swap: bool = True, unseen: b
         out["unseen_from"] = Path(unseen_from).name
     if mirrors != "none":
         out["mirrors"] = mirrors
+    if members:   # folder names only, as for unseen_from
+        out["members"] = [Path(m).name for m in members]
     if p.relief is not None:
         out["relief"] = p.relief
     metrics, units = score(ctx, nets, p.vis, p.tac, p.unseen)

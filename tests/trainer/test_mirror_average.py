@@ -150,6 +150,70 @@ def test_an_energy_mode_keeps_the_means_coarse_relief_and_the_plain_views_fine_e
     assert energy(added) == pytest.approx(energy(fine(plain)), rel=1e-4)   # and its strength given back
 
 
+class ShiftedNet(AnyNet):
+    """Another seed: the same kind of generator, drawn from another initialisation."""
+
+    def __init__(self, seed: int):
+        super().__init__()
+        torch.manual_seed(seed)
+        self.conv = nn.Conv2d(2, 5, 3, padding=1)
+
+
+@pytest.mark.parametrize("mode", [m for m in VIEWS if m != "none"])
+def test_other_seeds_join_as_more_views_and_the_photo_stays_the_first_seeds(mode):
+    """Averaging two seeds' views is the mean of each seed's own mirror average (every view counts once), and the
+    visual output is the first seed's plain one."""
+    s, m = inputs(10, 7, 2)
+    a, b = AnyNet(), ShiftedNet(5)
+    with torch.no_grad():
+        vis, tac = MirrorAverage(a, mode, [b])(s, m)
+        alone = [MirrorAverage(n, mode)(s, m)[1] for n in (a, b)]
+    assert torch.allclose(tac, (alone[0] + alone[1]) / 2, atol=1e-6) and torch.equal(vis, a(s, m)[0])
+    assert not torch.allclose(alone[0], alone[1], atol=1e-3)   # the two seeds differ
+
+
+def test_an_energy_ensemble_may_give_back_up_to_all_its_views():
+    """The -energy gain's bound is sqrt(every view), seeds included: two seeds of four views may lose up to
+    sqrt(8) of a weave they share nothing of."""
+    s, m = inputs(64, 48, 5)
+    a, b = WeaveNet(64, 48), WeaveNet(64, 48)
+    g = torch.Generator().manual_seed(11)
+    b.weave = {k: torch.randn(v.shape, generator=g) for k, v in a.weave.items()}   # another seed's weave
+    fine = lambda x: x - gaussian_lowpass(x, DETAIL_SIGMA_PX)
+    energy = lambda x: float((m * x * x).sum())
+    with torch.no_grad():
+        plain = a(s, m, "tactile")
+        mean = MirrorAverage(a, "flip+transpose", [b])(s, m, "tactile")
+        out = MirrorAverage(a, "flip+transpose" + ENERGY, [b])(s, m, "tactile")
+    added = out - gaussian_lowpass(mean, DETAIL_SIGMA_PX)
+    gain = float((added * fine(mean)).sum() / (fine(mean) ** 2).sum())
+    assert 2 < gain <= 8 ** 0.5 + 1e-6   # past one seed's bound, sqrt(4)
+    assert energy(added) == pytest.approx(energy(fine(plain)), rel=1e-4)
+
+
+def test_an_ensemble_is_refused_across_garments_methods_or_without_mirrors(tmp_path):
+    from trainer.checkpoint import CheckpointError
+    from trainer.config import load_config
+    from trainer.evaluate import Prediction
+    from trainer.loop import Trainer
+
+    garments = generate_dataset(tmp_path / "data", garments=2, seed=0, frame=(192, 144), progress=False,
+                                profile="easy")
+    runs = {}
+    for name, method, garment in (("one", "ours", 0), ("two", "ours", 0), ("pix", "pix2pix", 0), ("far", "ours", 1)):
+        cfg = load_config("tiny", method=method, overrides=["train.steps=1", "train.threads=1",
+                                                            f"train.seed={len(runs)}"])
+        runs[name] = tmp_path / name
+        Trainer(cfg, garments[garment], runs[name]).run()
+    with pytest.raises(CheckpointError, match="mirror mode"):
+        Prediction(runs["one"], "latest", unseen=False, members=[runs["two"]])
+    for other in ("pix", "far"):
+        with pytest.raises(CheckpointError, match="share the garment, method and crop"):
+            Prediction(runs["one"], "latest", unseen=False, mirrors="flip", members=[runs[other]])
+    p = Prediction(runs["one"], "latest", unseen=False, mirrors="flip", members=[runs["two"]])
+    assert len(p.net.others) == 1 and torch.isfinite(p.tac).all()
+
+
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**16), a=st.floats(0, 1e3), b=st.floats(0, 1e3), masked=st.floats(0, 1))
 def test_the_detail_gain_is_finite_and_bounded(seed, a, b, masked):

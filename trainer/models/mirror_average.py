@@ -26,12 +26,18 @@ texture statistic compares how strong the weave is, not where it sits; averaging
 phases leaves the right places and the wrong strength, and one gain per canvas gives the strength back without
 taking any view's phase. No data is fitted (the gain is the plain view's own energy), so it runs in the graph.
 
+Other seeds (`others`: generators of the same garment and recipe) join as more views: each is run on the plain
+sketch and on every mirror, and all views are averaged as above, the plain view still the first generator's. Why: a
+seed is another draw of the off-touch relief, as a mirror is. Not adopted (what it measured: docs/training.md, "Seed
+ensembles"); the exporter does not offer it.
+
 It keeps the generator's forward(sketch, mask, kind) contract, so evaluation, the exporter's graphs and their
 parity check run through it; an exported graph runs the generator once per view (its latency grows with them).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -118,17 +124,25 @@ def view_back(tac: torch.Tensor, view: str) -> torch.Tensor:
 
 
 class MirrorAverage(nn.Module):
-    def __init__(self, generator: nn.Module, mode: str):
+    def __init__(self, generator: nn.Module, mode: str, others: Sequence[nn.Module] = ()):
         super().__init__()
         if mode not in MODES or mode == "none":
             raise ValueError(f"mirror mode must be one of {', '.join(m for m in MODES if m != 'none')}; got {mode!r}")
         self.generator, self.mode, self.views = generator, mode, MODES[mode]
+        self.others = nn.ModuleList(others)
         self.low, self.lines = mode.endswith(LOW), mode.endswith(LINES)
         self.energy = mode.endswith(ENERGY)
         wx, wy = gaussian_taps(DETAIL_SIGMA_PX, 2)   # the relief's two slope channels
         self.register_buffer("taps_x", wx, persistent=False)
         self.register_buffer("taps_y", wy, persistent=False)
         self.register_buffer("taps_disc", disc_taps(LINE_REACH_MM / GRID_PITCH_MM), persistent=False)
+
+    def _views(self):
+        """Every (generator, mirror) pair but the plain one: this generator's mirrors, then each other seed's plain
+        view and mirrors ("" is no mirror)."""
+        yield from ((self.generator, v) for v in self.views)
+        for g in self.others:
+            yield from ((g, v) for v in ("",) + tuple(self.views))
 
     def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
         out = self.generator(sketch, mask, kind)
@@ -137,10 +151,15 @@ class MirrorAverage(nn.Module):
         if "tactile" in names:
             i = names.index("tactile")
             plain = total = outs[i]
-            for view in self.views:
-                o = self.generator(view_in(sketch, view), view_in(mask, view), kind)
-                total = total + view_back(o[i] if isinstance(o, tuple) else o, view)
-            mean = total / (1 + len(self.views))
+            for g, view in self._views():
+                if view:
+                    o = g(view_in(sketch, view), view_in(mask, view), kind)
+                    total = total + view_back(o[i] if isinstance(o, tuple) else o, view)
+                else:
+                    o = g(sketch, mask, kind)
+                    total = total + (o[i] if isinstance(o, tuple) else o)
+            n = (1 + len(self.views)) * (1 + len(self.others))
+            mean = total / n
             if self.low:
                 outs[i] = plain + gaussian_lowpass(mean - plain, taps=(self.taps_x, self.taps_y))
             elif self.energy:
@@ -148,7 +167,7 @@ class MirrorAverage(nn.Module):
                 coarse = gaussian_lowpass(mean, taps=taps)
                 fine = mean - coarse
                 outs[i] = coarse + detail_gain(plain - gaussian_lowpass(plain, taps=taps), fine, mask,
-                                               math.sqrt(1 + len(self.views))) * fine
+                                               math.sqrt(n)) * fine
             elif self.lines:
                 outs[i] = plain + stroke_band(sketch, self.taps_disc) * (mean - plain)
             else:
