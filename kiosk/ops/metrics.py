@@ -92,75 +92,17 @@ class _Metric(abc.ABC):
         return head + "".join(line + "\n" for line in self._samples())
 
 
-class Counter(_Metric):
-    """Only goes up (frames, errors, retries); Prometheus derives rates from it."""
-
-    kind = "counter"
+class _Valued(_Metric):
+    """One number a label set, set here or read from a function at each render (what counters and gauges share)."""
 
     def __init__(self, name: str, help: str, labels: Iterable[str] = ()):
         super().__init__(name, help, labels)
         self._values: dict[tuple[str, ...], float] = {} if self.labels else {(): 0.0}
         self._functions: dict[tuple[str, ...], Callable[[], float]] = {}
 
-    def inc(self, amount: float = 1.0, **labels: object) -> None:
-        amount = float(amount)
-        if not math.isfinite(amount) or amount < 0:
-            raise MetricError(f"counter {self.name} can only increase by a finite amount >= 0; got {amount}")
-        key = self._key(labels)
-        with self._lock:
-            if key in self._functions:
-                raise MetricError(f"counter {self.name}{dict(labels)} is read from a function; it cannot be inc'd")
-            self._values[key] = self._values.get(key, 0.0) + amount
-
     def set_function(self, fn: Callable[[], float], **labels: object) -> None:
-        """Read a total that another process keeps (e.g. the fleet sync job's state file) at each render."""
-        key = self._key(labels)
-        with self._lock:
-            self._functions[key] = fn
-            self._values.pop(key, None)
-
-    def value(self, **labels: object) -> float:
-        key = self._key(labels)
-        with self._lock:
-            fn = self._functions.get(key)
-            if fn is None:
-                return self._values.get(key, 0.0)
-        return Gauge._call(fn)
-
-    def _samples(self) -> list[str]:
-        with self._lock:
-            items = dict(self._values)
-            fns = dict(self._functions)
-        items.update({k: Gauge._call(fn) for k, fn in fns.items()})
-        return [f"{self.name}{_label_text(self.labels, k)} {format_value(v)}" for k, v in sorted(items.items())]
-
-
-class Gauge(_Metric):
-    """A value that goes up and down (device link up, RSS, queue depth); may be read lazily from a function."""
-
-    kind = "gauge"
-
-    def __init__(self, name: str, help: str, labels: Iterable[str] = ()):
-        super().__init__(name, help, labels)
-        self._values: dict[tuple[str, ...], float] = {} if self.labels else {(): 0.0}
-        self._functions: dict[tuple[str, ...], Callable[[], float]] = {}
-
-    def set(self, value: float, **labels: object) -> None:
-        key = self._key(labels)
-        with self._lock:
-            self._functions.pop(key, None)
-            self._values[key] = float(value)
-
-    def inc(self, amount: float = 1.0, **labels: object) -> None:
-        key = self._key(labels)
-        with self._lock:
-            self._values[key] = self._values.get(key, 0.0) + float(amount)
-
-    def dec(self, amount: float = 1.0, **labels: object) -> None:
-        self.inc(-float(amount), **labels)
-
-    def set_function(self, fn: Callable[[], float], **labels: object) -> None:
-        """Read the value from `fn` at each render (e.g. resident memory); an exception renders NaN."""
+        """Read the value from `fn` at each render (resident memory, a total the fleet sync job keeps in its state
+        file); an exception renders NaN."""
         key = self._key(labels)
         with self._lock:
             self._functions[key] = fn
@@ -187,6 +129,44 @@ class Gauge(_Metric):
             fns = dict(self._functions)
         items.update({k: self._call(fn) for k, fn in fns.items()})
         return [f"{self.name}{_label_text(self.labels, k)} {format_value(v)}" for k, v in sorted(items.items())]
+
+
+class Counter(_Valued):
+    """Only goes up (frames, errors, retries); Prometheus derives rates from it."""
+
+    kind = "counter"
+
+    def inc(self, amount: float = 1.0, **labels: object) -> None:
+        amount = float(amount)
+        if not math.isfinite(amount) or amount < 0:
+            raise MetricError(f"counter {self.name} can only increase by a finite amount >= 0; got {amount}")
+        key = self._key(labels)
+        with self._lock:
+            if key in self._functions:
+                raise MetricError(f"counter {self.name}{dict(labels)} is read from a function; it cannot be inc'd")
+            self._values[key] = self._values.get(key, 0.0) + amount
+
+
+class Gauge(_Valued):
+    """A value that goes up and down (device link up, RSS, queue depth); may be read lazily from a function."""
+
+    kind = "gauge"
+
+    def set(self, value: float, **labels: object) -> None:
+        key = self._key(labels)
+        with self._lock:
+            self._functions.pop(key, None)
+            self._values[key] = float(value)
+
+    def inc(self, amount: float = 1.0, **labels: object) -> None:
+        key = self._key(labels)
+        with self._lock:
+            if key in self._functions:
+                raise MetricError(f"gauge {self.name}{dict(labels)} is read from a function; set() it instead")
+            self._values[key] = self._values.get(key, 0.0) + float(amount)
+
+    def dec(self, amount: float = 1.0, **labels: object) -> None:
+        self.inc(-float(amount), **labels)
 
 
 class Histogram(_Metric):

@@ -86,6 +86,8 @@ def test_gauge_function_is_read_at_render_and_a_failing_one_renders_nan():
     (lambda r: (r.counter("m", "x", labels=("a",)), r.counter("m", "x", labels=("b",))), "already declared"),
     (lambda r: (r.histogram("lat", "x"), r.counter("lat_count", "x")), "collides"),
     (lambda r: (r.gauge("lat_sum", "x"), r.histogram("lat", "x")), "collide"),
+    (lambda r: (c := r.counter("c", "x"), c.set_function(lambda: 1.0), c.inc()), "read from a function"),
+    (lambda r: (g := r.gauge("g", "x"), g.set_function(lambda: 1.0), g.inc()), "read from a function"),
 ])
 def test_misuse_is_a_clear_error(bad, match):
     with pytest.raises(MetricError, match=match):
