@@ -6,7 +6,9 @@ mirroring (trainer/models/mirror_average.py) averages the views of one seed, and
 the order given and cut into disjoint groups of each `--sizes` (4 runs, sizes 2 4: the first two, the last two,
 all four); every run is also scored alone, through the evaluation cache, so the singles are the tables' own rows.
 The largest size is `ours` of the intervals (`ens-N - X`). A group costs its size times the views in generator
-passes a frame (said under the table); an ensemble's rows are never cached.
+passes a frame (said under the table); an ensemble's rows are never cached. `--beside` adds other methods' runs
+(`[LABEL=]RUN[@...]`, as `vtkiosk eval --compare` takes them; cached), so the target check reads the ensemble
+against them too.
 
     .venv/bin/python scripts/seed_ensemble_study.py --sizes 2 4 --relief lift --mirrors flip+transpose-energy \
         --unseen-from data/hard640x24 --out docs/compare_1k/mirrors/ensemble_kn \
@@ -25,7 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from trainer import eval_cache  # noqa: E402
-from trainer.compare import report  # noqa: E402
+from trainer.compare import parse_labelled, report  # noqa: E402
 from trainer.evaluate import evaluate  # noqa: E402
 from trainer.models.mirror_modes import MODES  # noqa: E402
 from trainer.relief_rules import RULES  # noqa: E402
@@ -45,6 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--relief", default="lift", choices=RULES)
     ap.add_argument("--mirrors", default="flip+transpose-energy", choices=[m for m in MODES if m != "none"])
     ap.add_argument("--unseen-from", type=Path)
+    ap.add_argument("--beside", nargs="+", default=[], metavar="[LABEL=]RUN[@...]",
+                    help="other methods' runs to score beside, as `eval --compare` names them (as trained unless "
+                         "an @ says otherwise)")
     ap.add_argument("--which", default="latest")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
@@ -54,8 +59,20 @@ def main(argv: list[str] | None = None) -> int:
         plan = {n: groups(a.runs, n) for n in sorted(set(a.sizes))}
     except ValueError as exc:
         ap.error(str(exc))
+    try:
+        beside, labels = parse_labelled(a.beside) if a.beside else ([], {})
+    except ValueError as exc:
+        ap.error(str(exc))
     torch.set_num_threads(1)
     evals = []
+    for spec in beside:
+        print(f"beside: {spec}", flush=True)
+        e = eval_cache.scored(spec.path, a.which, spec.weights, relief=spec.relief, mirrors=spec.mirrors,
+                              unseen_from=a.unseen_from)
+        name = labels.get(spec, e.result["method"] + "".join(f"-{t}" for t in spec.tags))   # as eval --compare
+        if name != e.result["method"]:
+            e.result["trained_method"], e.result["method"] = e.result["method"], name
+        evals.append(e)
     for run in a.runs:
         print(f"single: {run}", flush=True)
         e = eval_cache.scored(run, a.which, relief=a.relief, mirrors=a.mirrors, unseen_from=a.unseen_from)

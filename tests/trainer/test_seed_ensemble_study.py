@@ -22,11 +22,17 @@ def test_the_ensemble_is_scored_beside_its_seeds(es, easy_garment, tmp_path):
         runs.append(tmp_path / f"s{seed}")
         cfg = load_config("tiny", overrides=["train.steps=1", "train.threads=1", f"train.seed={seed}"])
         Trainer(cfg, easy_garment.root, runs[-1]).run()
+    other = tmp_path / "p2p"
+    Trainer(load_config("tiny", method="pix2pix", overrides=["train.steps=1", "train.threads=1"]),
+            easy_garment.root, other).run()
     out = tmp_path / "study"
-    assert es.main([*map(str, runs), "--sizes", "2", "--mirrors", "flip", "--relief", "none", "--out", str(out)]) == 0
+    assert es.main([*map(str, runs), "--sizes", "2", "--mirrors", "flip", "--relief", "none", "--out", str(out),
+                    "--beside", str(other), f"p2p-flip={other}@flip"]) == 0
     data = json.loads((out / "compare.json").read_text())
     rows = data["runs"]
-    assert [r["method"] for r in rows] == ["single", "single", "ens-2"] and rows[2]["members"] == ["s1"]
+    assert [r["method"] for r in rows] == ["pix2pix", "p2p-flip", "single", "single", "ens-2"]
+    assert rows[4]["members"] == ["s1"] and rows[1]["mirrors"] == "flip" and "mirrors" not in rows[0]
+    assert set(data["target"]["competitors"]) == {"pix2pix", "p2p-flip", "single"}
     assert rows[2]["full_angle_deg"] != pytest.approx(rows[0]["full_angle_deg"])   # another relief than seed 0's
     md = (out / "compare.md").read_text()
     assert "ens-2 − X, paired bootstrap" in md and "Generator passes a frame: single 2, ens-2 4" in md
