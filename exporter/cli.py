@@ -74,7 +74,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="calibrate the tactile output on the garment's training touches (trainer/relief.py): one "
                         "gain (rms matches their relief's energy, lift never shrinks it), or shade: mixed with the "
                         "visual's own shading, one more convolution in every graph (shade-lift: the relief's weight "
-                        "kept at 1 or above); default none: as trained")
+                        "kept at 1 or above), or auto: lift or shade-lift, whichever the garment's validation touches "
+                        "prefer (the choice is in the provenance); default none: as trained")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
                         "generator passes: the tactile latency grows with them; a -low mode averages only the coarse "

@@ -38,7 +38,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="calibrate each run's tactile output on its garment's training touches before scoring "
                         "(trainer/relief.py): one gain (rms matches the relief's energy, ls is the least-squares "
                         "gain, lift the ls gain floored at 1), or shade: the relief mixed with its own photo's "
-                        "shading (trainer/shading_fit.py; shade-lift keeps the relief's weight at 1 or above); "
+                        "shading (trainer/shading_fit.py; shade-lift keeps the relief's weight at 1 or above), or auto: "
+                        "lift or shade-lift, whichever the garment's validation touches prefer; "
                         "default none: as trained; with --compare, RUN@rms calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
                    help="average each run's tactile output over mirrored views of its sketch (left to right, across "

@@ -194,6 +194,27 @@ def test_shading_relief_runs_inside_the_graph(run_dir, tmp_path):
     assert np.abs(outs["shade"][1] - outs["none"][1]).max() > 1e-4
 
 
+def test_auto_relief_exports_the_rule_it_chose_and_says_which(run_dir, tmp_path):
+    """--relief auto: the bundle holds the wrap of whichever rule the validation touches chose, in every graph, and
+    the provenance names it beside both rules' validation angles."""
+    from trainer.checkpoint import load_generator
+    from trainer.config import read_run_config
+    from trainer.data.touchclothing import load_garment
+    from trainer.relief import calibrate
+
+    s, _ = letterbox(np.full((240, 320), 255, np.uint8), (256, 256))
+    s[40:200, 40], s[40:200, 210], s[40, 40:211], s[200, 40:211] = 0, 0, 0, 0
+    x = network_input(s, object_mask(s))
+    b, out = _exported_outputs(run_dir, tmp_path, "auto", x, relief="auto")
+    gen, info = load_generator(run_dir)
+    wrapped, fit, _ = calibrate(gen.eval(), load_garment(read_run_config(run_dir).garment), int(info["crop"]), "auto")
+    line = b.manifest.provenance["relief"]
+    assert line.startswith(f"auto chose {fit['chose']}") and "validation angle" in line
+    with torch.no_grad():
+        _, want = wrapped(torch.from_numpy(x.sketch), torch.from_numpy(x.mask))
+    assert np.abs(out[1] - want.numpy()).max() < 1e-4
+
+
 def test_mirrored_bundle_averages_the_relief_inside_the_graph(run_dir, tmp_path):
     """--mirrors: every view runs inside the graph (ONNX Transpose / flip), so ONNX Runtime returns what the wrapper
     returns in torch; the visual output is the plain bundle's, and the manifest says which views."""

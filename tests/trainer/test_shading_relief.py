@@ -233,3 +233,62 @@ def test_shade_lift_names_itself_and_keeps_the_relief_at_full_strength(easy_garm
     wrapped, info, line = calibrate(net, easy_garment, SIDE, "shade-lift")
     assert free["model_weight"] < 0.9 and info["model_weight"] == 1.0
     assert info["rule"] == "shade-lift" and line.startswith("shade-lift: model x1.0000")
+
+
+def _exact_truth(g) -> np.ndarray:
+    x, y = eval_crop_origin(g.mask, SIDE)
+    return np.stack([a[y:y + SIDE, x:x + SIDE].astype(np.float64) for a in (g.full_tactile.gx, g.full_tactile.gy)])
+
+
+@pytest.mark.parametrize("field, chosen", [(_coarse_truth, "shade-lift"), (_exact_truth, "lift")])
+def test_auto_keeps_the_shading_only_where_the_validation_touches_want_it(easy_garment, field, chosen):
+    """A model with no weave gains from its photo's shading on touches no fit saw, so `auto` keeps `shade-lift`; a
+    model already right there gains nothing, so the cheaper `lift` stays. What it keeps is that rule's own wrap."""
+    net = PhotoNet(easy_garment, field(easy_garment))
+    wrapped, info, line = calibrate(net, easy_garment, SIDE, "auto")
+    angles = info["validation_angle_deg"]
+    assert info["rule"] == "auto" and info["chose"] == chosen and set(angles) == {"lift", "shade-lift"}
+    assert line.startswith(f"auto chose {chosen}") and "validation angle: lift" in line
+    own, _, _ = calibrate(net, easy_garment, SIDE, chosen)
+    with torch.no_grad():
+        assert torch.equal(wrapped(net.vis, net.mask)[1], own(net.vis, net.mask)[1])
+    if chosen == "shade-lift":
+        assert angles["shade-lift"] < 0.98 * angles["lift"]
+
+
+def test_auto_with_no_validation_touch_keeps_the_cheaper_rule(easy_garment):
+    bare = type(easy_garment).__new__(type(easy_garment))
+    bare.__dict__.update(easy_garment.__dict__)
+    bare.touches = {**easy_garment.touches, "val": []}
+    _, info, line = calibrate(PhotoNet(bare, _coarse_truth(bare)), bare, SIDE, "auto")
+    assert info["chose"] == "lift" and info["validation_angle_deg"] == {"lift": None, "shade-lift": None}
+    assert "no validation touch in the crop" in line
+
+
+def test_auto_takes_the_rule_that_fits_and_refuses_when_none_does(easy_garment, monkeypatch):
+    from trainer import calibration, shading_fit
+
+    def refuse(*a, **k):
+        raise CalibrationError("stood in: refused")
+
+    net = PhotoNet(easy_garment, _coarse_truth(easy_garment))
+    monkeypatch.setattr(calibration, "fit_relief_gain", refuse)
+    _, info, _ = calibrate(net, easy_garment, SIDE, "auto")
+    assert info["chose"] == "shade-lift" and info["refused"] == {"lift": "stood in: refused"}
+    monkeypatch.setattr(shading_fit, "fit_shading", refuse)
+    with pytest.raises(CalibrationError, match="auto: no candidate fits"):
+        calibrate(net, easy_garment, SIDE, "auto")
+
+
+@settings(max_examples=100, deadline=None)
+@given(cheap=st.one_of(st.none(), st.floats(0, 90)), dear=st.one_of(st.none(), st.floats(0, 90)),
+       fitted=st.sampled_from([("lift", "shade-lift"), ("lift",), ("shade-lift",)]))
+def test_the_choice_keeps_the_cheaper_rule_unless_the_other_is_clearly_closer(cheap, dear, fitted):
+    from trainer.relief import AUTO_MARGIN, choose
+
+    angles = {k: v for k, v in (("lift", cheap), ("shade-lift", dear)) if k in fitted}
+    pick = choose(angles)
+    assert pick in fitted
+    if len(fitted) == 2:
+        clearly = cheap is not None and dear is not None and dear < (1 - AUTO_MARGIN) * cheap
+        assert pick == ("shade-lift" if clearly else "lift")
