@@ -37,7 +37,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from kiosk.bundle.archive import MANIFEST, NO_SPACE, ArchiveLimits, Bundle, safe_extract, sha256_file, verify_directory
-from kiosk.bundle.durable import fsync_dir
+from kiosk.bundle.durable import atomic_write, fsync_dir
 from kiosk.contract.errors import KioskError
 from kiosk.bundle.manifest import BundleError
 from kiosk.bundle.signature import load_trusted_keys
@@ -403,16 +403,9 @@ class BundleStore:
         return [v for v in doc if v in installed]
 
     def _write_history(self, garment: str, versions: list[str]) -> None:
-        meta = self.root / garment / META
-        meta.mkdir(parents=True, exist_ok=True)
-        tmp = meta / f".{HISTORY}.{secrets.token_hex(6)}"
-        with open(tmp, "w") as f:
-            json.dump(versions[-HISTORY_LENGTH:], f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, meta / HISTORY)
-        fsync_dir(meta)
-        self._adopt(meta / HISTORY)
+        path = self.root / garment / META / HISTORY
+        atomic_write(path, json.dumps(versions[-HISTORY_LENGTH:]).encode())
+        self._adopt(path)
 
     def rollback(self, garment: str) -> StoredBundle:
         """Go back one step in the activation history: rolling back twice goes two versions back (it does not flip

@@ -27,7 +27,7 @@ from tuf.api.serialization.json import JSONSerializer
 
 from kiosk.bundle.version import compare
 from kiosk.fleet import keys as rolekeys
-from kiosk.fleet.atomic import atomic_write
+from kiosk.bundle.durable import atomic_write
 from kiosk.fleet.layout import (CHANNELS, FleetError, Release, check_channel, check_rollout, index_bytes, index_path,
                                 release_from_custom, target_path)
 

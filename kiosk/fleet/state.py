@@ -15,7 +15,7 @@ from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
-from kiosk.fleet.atomic import atomic_write
+from kiosk.bundle.durable import atomic_write
 from kiosk.ops.health import CheckResult
 
 STATE_FILE = "state.json"

@@ -2,6 +2,7 @@
 hostile and broken input, crashes mid-install, concurrent operators, and a real daemon told over its socket."""
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
@@ -119,6 +120,24 @@ def test_rollback_walks_back_through_the_history_and_says_where_it_went(tmp_path
     # a store written before the history existed: one step back through its previous link
     (store.root / "denim-shorts" / ".meta" / ".history").unlink()
     assert store.rollback("denim-shorts").version == V1
+
+
+def test_a_history_write_that_fails_activates_nothing_and_leaves_no_temporary(tmp_path, bundles, monkeypatch):
+    store = _store(tmp_path, bundles)
+    store.install(bundles[V1])
+    store.activate("denim-shorts", V1)
+    store.install(bundles[V2])
+    meta = store.root / "denim-shorts" / ".meta"
+    before = sorted(p.name for p in meta.iterdir())
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr("kiosk.bundle.durable.os.fsync", full)
+    with pytest.raises(OSError, match="No space left"):
+        store.activate("denim-shorts", V2)
+    monkeypatch.undo()
+    assert sorted(p.name for p in meta.iterdir()) == before   # the old history, no temporary beside it
+    assert store.history("denim-shorts") == [V1] and store.links("denim-shorts") == (V1, None)
 
 
 def test_rollback_cli_names_the_version_it_went_to(tmp_path, bundles):

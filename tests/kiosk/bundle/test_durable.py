@@ -1,11 +1,12 @@
-"""The fleet's files are replaced whole: a failed write keeps the old file and leaves no temporary beside it."""
+"""Files replaced whole (the fleet's metadata and state, the store's history): a failed write keeps the old file
+and leaves no temporary beside it."""
 from __future__ import annotations
 
 import stat
 
 import pytest
 
-from kiosk.fleet.atomic import atomic_write
+from kiosk.bundle.durable import atomic_write
 
 
 def test_a_write_replaces_the_file_whole_and_readable_by_the_server(tmp_path):
