@@ -6,8 +6,8 @@ import math
 from pathlib import Path
 
 from exporter.quiet import chatter_to
-from trainer.models.mirror_modes import MODES as MIRROR_MODES
-from trainer.relief_rules import RULES as RELIEF_RULES
+from trainer.models.mirror_modes import HELP as MIRROR_HELP, MODES as MIRROR_MODES
+from trainer.relief_rules import HELP as RELIEF_HELP, RULES as RELIEF_RULES
 
 
 def _sizes(text: str) -> list[tuple[int, int]]:
@@ -71,17 +71,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="the bundle's version (ordered as kiosk.bundle.version says; default YYYYMMDD-step)")
     p.add_argument("--display-name", default=None)
     p.add_argument("--relief", choices=RELIEF_RULES, default="none",
-                   help="calibrate the tactile output on the garment's training touches (trainer/relief.py): one "
-                        "gain (rms matches their relief's energy, lift never shrinks it), or shade: mixed with the "
-                        "visual's own shading, one more convolution in every graph (shade-lift: the relief's weight "
-                        "kept at 1 or above), or auto: lift or shade-lift, whichever the garment's validation touches "
-                        "prefer (the choice is in the provenance); default none: as trained")
+                   help=f"{RELIEF_HELP}; a shade rule is one more convolution in every graph, and auto's choice is "
+                        "in the provenance; default none: as trained")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
-                   help="average the tactile output over mirrored views of the sketch, inside every graph (2, 2 or 4 "
-                        "generator passes: the tactile latency grows with them; a -low mode averages only the coarse "
-                        "relief, a -lines mode only by the sketch's strokes, an -energy mode gives the fine relief back "
-                        "its strength; trainer/models/mirror_average.py), "
-                        "before any --relief gain; default none")
+                   help=f"{MIRROR_HELP}; inside every graph, so the tactile latency grows with the passes; "
+                        "default none")
     p.add_argument("--normalization", choices=("perceptual", "calibrated", "quantile"), default="perceptual",
                    help="friction mapping the bundle uses (docs/haptics.md); its constants are calibrated and stored")
     p.add_argument("--runs-root", type=Path, default=None,

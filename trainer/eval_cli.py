@@ -8,8 +8,8 @@ import logging
 import sys
 from pathlib import Path
 
-from trainer.models.mirror_modes import MODES as MIRROR_MODES
-from trainer.relief_rules import RULES
+from trainer.models.mirror_modes import HELP as MIRROR_HELP, MODES as MIRROR_MODES
+from trainer.relief_rules import HELP as RELIEF_HELP, RULES
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
@@ -35,18 +35,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "folder), so a part of a check can come from one table and be pooled with the rest after")
     p.add_argument("--which", choices=("best", "latest"), default="best", help="checkpoint to evaluate")
     p.add_argument("--relief", choices=RULES, default="none",
-                   help="calibrate each run's tactile output on its garment's training touches before scoring "
-                        "(trainer/relief.py): one gain (rms matches the relief's energy, ls is the least-squares "
-                        "gain, lift the ls gain floored at 1), or shade: the relief mixed with its own photo's "
-                        "shading (trainer/shading_fit.py; shade-lift keeps the relief's weight at 1 or above), or auto: "
-                        "lift or shade-lift, whichever the garment's validation touches prefer; "
-                        "default none: as trained; with --compare, RUN@rms calibrates one run only")
+                   help=f"before scoring, {RELIEF_HELP}; default none: as trained; with --compare, RUN@rms "
+                        "calibrates one run only")
     p.add_argument("--mirrors", choices=tuple(MIRROR_MODES), default="none",
-                   help="average each run's tactile output over mirrored views of its sketch (left to right, across "
-                        "the diagonal, or both: 2, 2 or 4 passes; a -low mode averages only the coarse relief, "
-                        "a -lines mode only by the sketch's strokes, an -energy mode gives the fine relief back its "
-                        "strength; trainer/models/mirror_average.py), before any "
-                        "--relief gain; default none; with --compare, RUN@flip mirrors one run only")
+                   help=f"{MIRROR_HELP}; default none; with --compare, RUN@flip mirrors one run only")
     p.add_argument("--json", type=Path, help="also write the metrics here")
     p.add_argument("--out", type=Path, default=Path("compare"), help="output folder of --compare")
     p.add_argument("--no-swap", action="store_true", help="skip the unseen-sketch swap grid")
