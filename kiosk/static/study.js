@@ -191,20 +191,7 @@ function presentConsent(state) {
 
 function presentAbout(state) {
   view = { state: "demographics", token: state.token };
-  const form = $("about-form");
-  form.replaceChildren();
-  for (const [name, choices] of Object.entries(state.fields)) {
-    const label = document.createElement("label");
-    label.textContent = name.replace(/_/g, " ");
-    label.htmlFor = `about-${name}`;
-    const select = document.createElement("select");
-    select.id = `about-${name}`;
-    select.name = name;
-    const none = new Option("prefer not to say", "");
-    select.add(none);
-    for (const c of choices) select.add(new Option(c, c));
-    form.append(label, select);
-  }
+  fillAboutForm($("about-form"), state.fields);
   busy = false;
   showScreen("about");
 }

@@ -148,19 +148,7 @@ function advance() {
     return;
   }
   if (DATA.demographics && !byType("demographics").length) {
-    const form = $("about-form");
-    form.replaceChildren();
-    for (const [name, choices] of Object.entries(DATA.demographics)) {
-      const label = document.createElement("label");
-      label.textContent = name.replace(/_/g, " ");
-      label.htmlFor = `about-${name}`;
-      const select = document.createElement("select");
-      select.id = `about-${name}`;
-      select.name = name;
-      select.add(new Option("prefer not to say", ""));
-      for (const c of choices) select.add(new Option(c, c));
-      form.append(label, select);
-    }
+    fillAboutForm($("about-form"), DATA.demographics);
     show("about");
     return;
   }

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import tempfile
 from pathlib import Path
 
@@ -25,6 +26,8 @@ from kiosk.study.schedule import SIDES, Trial, make_schedule
 from kiosk.study.service import study_layout, trial_scene
 
 HERE = Path(__file__).resolve().parent
+STATIC = HERE.parent / "static"
+SCREENS = ("<!-- shared screens:", "<!-- end of shared screens -->")
 
 
 class WebPageError(KioskError):
@@ -106,16 +109,30 @@ def export_page(config_path: str | Path, out: str | Path, *, participants: list[
         "layout": {"screen": list(layout.screen), "panels": layout.panels, "buttons": layout.buttons,
                    "question": list(layout.question)},
     }
-    blob = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
-    html = (HERE / "webpage.html").read_text()
-    html = html.replace("/*STYLE*/", (HERE.parent / "static" / "study.css").read_text())
-    html = html.replace("/*DATA*/", blob).replace("/*SCRIPT*/", (HERE / "webpage.js").read_text())
+    blob = json.dumps(data, separators=(",", ":")).replace("<", "\\u003c")    # no `</script>`, no `<!--`
+    html = _fill((HERE / "webpage.html").read_text(), {
+        "/*STYLE*/": (STATIC / "study.css").read_text(), "<!--SCREENS-->": _shared_screens(),
+        "/*DATA*/": blob, "/*ABOUT*/": (STATIC / "study-about.js").read_text(),
+        "/*SCRIPT*/": (HERE / "webpage.js").read_text()})
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text(html, encoding="utf-8")
     tmp.replace(out)
     return len(codes)
+
+
+def _fill(template: str, parts: dict[str, str]) -> str:
+    """One pass, so a marker inside inserted text (a consent text that quotes `/*SCRIPT*/`) stays text."""
+    pattern = "|".join(re.escape(marker) for marker in parts)
+    return re.sub(pattern, lambda m: parts[m.group(0)], template)
+
+
+def _shared_screens() -> str:
+    """The consent and optional-questions screens as the kiosk's study page has them, so the two never drift."""
+    page = (STATIC / "study.html").read_text()
+    start, end = page.index(SCREENS[0]), page.index(SCREENS[1])
+    return page[page.index("\n", start) + 1:end]
 
 
 def _software() -> str:

@@ -20,12 +20,14 @@ from .conftest import write_study
 from .simulate import ROOT
 
 pytestmark = pytest.mark.browser
+# Markup and the page's own fill markers in a study's text stay text.
+CONSENT = "Ich stimme zu. \u00c4rger \u2013 nein. </script><!-- /*SCRIPT*/ <!--SCREENS--> /*DATA*/"
 
 
 def test_exported_page_writes_the_kiosks_log_records(tmp_path, study_env):
     playwright = pytest.importorskip("playwright.sync_api")
     cfg_path = write_study(tmp_path, study_env, name="web", kind="visual", warmup_trials=2, time_limit_s=None,
-                           consent={"version": "w1", "text": "Ich stimme zu. \u00c4rger \u2013 nein."},
+                           consent={"version": "w1", "text": CONSENT},
                            demographics={"age_band": ["18-24", "25-34"]},
                            participants={"codes": ["W01", "W02"]})
     cfg = load_study_config(cfg_path)
@@ -48,6 +50,8 @@ def test_exported_page_writes_the_kiosks_log_records(tmp_path, study_env):
         assert "not part of the study" in page.inner_text("#code-error")
         page.fill("#code-input", "W02")
         page.click("#code-form button")
+        assert page.inner_text("#consent-text") == CONSENT
+        assert page.locator("#consent").count() == 1 and page.locator("#about-form").count() == 1
         page.click("#consent-yes")
         page.select_option("#about-age_band", "25-34")
         page.click("#about-go")
