@@ -218,6 +218,14 @@ def calibrate_scale(gx: object, gy: object, mask: object | None = None, *, quant
     """
     if not 0.0 < quantile <= 1.0:
         raise InputError(f"quantile must be in (0, 1]; got {quantile}")
+    gz = _contact_energy(gx, gy, mask)
+    if gz.size == 0:
+        return MIN_FRICTION_SCALE
+    return float(max(np.quantile(gz, quantile), MIN_FRICTION_SCALE))
+
+
+def _contact_energy(gx: object, gy: object, mask: object | None) -> np.ndarray:
+    """gx^2 + gy^2 at the contact pixels, flattened and finite: what both calibrations take quantiles of."""
     ax, ay = sanitize_gradients(gx, gy, dtype=np.float64)
     gz = ax * ax + ay * ay
     if mask is not None:
@@ -225,10 +233,7 @@ def calibrate_scale(gx: object, gy: object, mask: object | None = None, *, quant
         if m.shape != gz.shape:
             raise InputError(f"mask must have the gradients' shape {gz.shape}; got {m.shape}")
         gz = gz[m.astype(bool)]
-    gz = gz[np.isfinite(gz)]
-    if gz.size == 0:
-        return MIN_FRICTION_SCALE
-    return float(max(np.quantile(gz, quantile), MIN_FRICTION_SCALE))
+    return gz[np.isfinite(gz)].ravel()
 
 
 def _min_max(a: np.ndarray) -> np.ndarray:
@@ -263,13 +268,7 @@ def perceptual_constants(gx: object, gy: object, mask: object | None = None,
         if k not in c:
             raise InputError(f"unknown perceptual constant {k!r} (known: {', '.join(sorted(c))})")
         c[k] = float(v)
-    ax, ay = sanitize_gradients(gx, gy, dtype=np.float64)
-    gz = ax * ax + ay * ay
-    if mask is not None:
-        m = np.asarray(mask)
-        if m.shape != gz.shape:
-            raise InputError(f"mask must have the gradients' shape {gz.shape}; got {m.shape}")
-        gz = gz[m.astype(bool)]
+    gz = _contact_energy(gx, gy, mask)
     floor = c["floor_slope"] ** 2
     lo, hi = (np.quantile(gz, (0.25, 0.75)) if gz.size else (floor, floor))
     c["gz_low"] = float(max(lo, floor))
