@@ -8,11 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.kiosk.browser import headless_chromium
 from tests.kiosk.daemon_fixtures import demo_and_coat_daemon, wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-playwright = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 
 OUTLINE_A = [(380, 220), (900, 220), (900, 420)]          # first stroke: the outline stays open
 OUTLINE_B = [(900, 420), (900, 640), (380, 640), (380, 222)]  # second stroke closes it
@@ -24,14 +23,6 @@ def daemon(tmp_path_factory):
     d = demo_and_coat_daemon(tmp_path_factory, "page")
     yield d
     d.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with playwright.sync_playwright() as p:
-        b = headless_chromium(p)
-        yield b
-        b.close()
 
 
 @pytest.fixture()

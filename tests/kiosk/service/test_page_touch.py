@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 
 from tests.kiosk.bundle_factory import make_bundle
-from tests.kiosk.browser import headless_chromium
 from tests.kiosk.daemon_fixtures import demo_and_coat_daemon, start_daemon, wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-playwright = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 
 OUTLINE = [(380, 220), (900, 220), (900, 640), (380, 640), (380, 222)]  # one closed stroke
 ACROSS = [(300, 430), (980, 430)]  # a slide across the garment and beyond it
@@ -31,14 +30,6 @@ def daemon(tmp_path_factory):
     d = demo_and_coat_daemon(tmp_path_factory, "touch")
     yield d
     d.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with playwright.sync_playwright() as p:
-        b = headless_chromium(p)
-        yield b
-        b.close()
 
 
 class Fingers:
