@@ -27,12 +27,7 @@ def pareto(points: list[tuple[float, float]]) -> list[int]:
 
 def plot(rows: list[dict], out: Path, *, title: str) -> Path:
     """Write the scatter PNG. Rows without an error value (no fp32 reference) are skipped."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise ImportError("--plot needs matplotlib (install vtkiosk[export])") from exc
+    plt = _pyplot("--plot")
     usable = [r for r in rows if r.get("friction_mae_levels") is not None and r.get("p50_ms")]
     graphs = sorted({r["graph"] for r in usable}, key=["full", "tactile", "visual"].index) or ["full"]
     fig, axes = plt.subplots(1, len(graphs), figsize=(6.5 * len(graphs), 5), squeeze=False)
@@ -61,30 +56,15 @@ def plot(rows: list[dict], out: Path, *, title: str) -> Path:
         ax.set_ylabel("friction-map MAE vs fp32 (levels of 255)")
         ax.set_title(f"{graph} graph")
         ax.grid(True, which="both", alpha=0.3)
-    handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=e) for e, c in ENGINE_COLOURS.items()]
-    handles += [plt.Line2D([], [], ls="", marker=mk, color="k", label=f"{p} {f}") for (p, f), mk in
-                FORM_MARKERS.items()]
-    handles.append(plt.Line2D([], [], color="0.6", label="Pareto front per setting"))
-    fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=8, frameon=False)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.95))
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    lines = [plt.Line2D([], [], color="0.6", label="Pareto front per setting")]
+    return _legend_and_save(plt, fig, lines, out, title=title, fontsize=8, bottom=0.06)
 
 
 def plot_pareto(rows: list[dict], out: Path, *, title: str) -> Path:
     """Latency against error against the ground truth (full-field tactile angle): left, the fixed canvases (the
     garment filling each); right, the kiosk planner's settings. Each panel draws its Pareto front over all
     engines, precisions and sizes, and the trivial answer (a flat garment) of each setting as a dashed line."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise ImportError("--pareto needs matplotlib (install vtkiosk[export])") from exc
+    plt = _pyplot("--pareto")
     with_truth = [r for r in rows if r.get("full_angle_deg") is not None]
     groups = [("fixed canvases (garment filling each)", [r for r in with_truth
                                                           if str(r.get("setting", "")).endswith("canvas")]),
@@ -117,14 +97,29 @@ def plot_pareto(rows: list[dict], out: Path, *, title: str) -> Path:
         ax.set_ylabel("full-field tactile angle vs ground truth (deg)")
         ax.set_title(name, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
+    lines = [plt.Line2D([], [], color="0.5", label="Pareto front"),
+             plt.Line2D([], [], color="0.7", ls="--", label="flat garment (trivial answer)")]
+    return _legend_and_save(plt, fig, lines, out, title=title, fontsize=7, bottom=0.1)
+
+
+def _pyplot(flag: str):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise ImportError(f"{flag} needs matplotlib (install vtkiosk[export])") from exc
+    return plt
+
+
+def _legend_and_save(plt, fig, lines: list, out: Path, *, title: str, fontsize: int, bottom: float) -> Path:
+    """One legend for the figure: engine colours, precision and form markers, then the panel's own lines."""
     handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=e) for e, c in ENGINE_COLOURS.items()]
     handles += [plt.Line2D([], [], ls="", marker=mk, color="k", label=f"{p} {f}") for (p, f), mk in
                 FORM_MARKERS.items()]
-    handles.append(plt.Line2D([], [], color="0.5", label="Pareto front"))
-    handles.append(plt.Line2D([], [], color="0.7", ls="--", label="flat garment (trivial answer)"))
-    fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=7, frameon=False)
+    fig.legend(handles=handles + lines, loc="lower center", ncol=5, fontsize=fontsize, frameon=False)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.1, 1, 0.95))
+    fig.tight_layout(rect=(0, bottom, 1, 0.95))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
