@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import json
 import os
 import resource
 import time
@@ -34,6 +33,7 @@ import numpy as np
 from kiosk.bench.felt import contrast_steps, dominant_period_px, felt_scale
 from exporter.bench import haptics_map
 from exporter.bench.environment import environment
+from exporter.bench.result_file import write_result
 from exporter.errors import ExportError
 from kiosk.contract.haptics import SUPERSAMPLE, calibrate_scale, friction_map, jnd_steps, perceptual_constants
 from kiosk.inference.render import compose, friction_texture
@@ -537,10 +537,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench haptics") -> int:
         raise HapticsBenchError(f"{args.bundle}: no such bundle")
     result = run_bench(args)
     print(report(result))
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
-        print(f"wrote {args.json}")
+    write_result(args.json, result)
     if args.picture is not None:
         print(f"wrote {args.picture}")
     return 0
@@ -555,10 +552,7 @@ def map_sweep(args) -> int:
           f"load {env['loadavg_start'][0]:.1f} -> {result['loadavg_end'][0]:.1f}; "
           f"peak RSS {result['peak_rss_mib']} MiB")
     print(haptics_map.table(rows))
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
-        print(f"wrote {args.json}")
+    write_result(args.json, result)
     if args.plot is not None:
         print(f"wrote {args.plot}" if haptics_map.plot(rows, args.plot) else "no plot: matplotlib is not installed")
     return 0

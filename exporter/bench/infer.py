@@ -28,6 +28,7 @@ import numpy as np
 from exporter.bench.bundle_bytes import bundle_layout, bundle_line
 from exporter.bench.environment import environment
 from exporter.bench.report import goal_lines, goals, markdown_table, profile_lines
+from exporter.bench.result_file import write_result
 from exporter.bench.sources import BenchError, Candidate, build_sources, open_measured, portable, torch_available
 from exporter.shared_weights import graph_bytes
 from kiosk.contract.errors import KioskError
@@ -486,10 +487,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench infer") -> int:
     load = result["environment"]
     print(f"{args.threads} threads, {args.wait} wait; load average at start {load['loadavg_start'][0]:.2f}, at end "
           f"{load['loadavg_end'][0]:.2f} ({load['logical_cpus']} logical CPUs)")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
-        print(f"wrote {args.json}")
+    write_result(args.json, result)
     if args.plot is not None:
         from exporter.bench.plot import plot
         m, cpu = result["bundle"], result["environment"]["cpu"]

@@ -17,7 +17,6 @@ edges, how many such pixels are 64 levels or more off per sketch, and the share 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from exporter.bench.result_file import write_result
 from exporter.bench.sources import portable
 from kiosk.contract.graph import feeds
 
@@ -134,12 +134,9 @@ def main(argv: list[str], prog: str = "python -m exporter.bench.int8_study") -> 
         print(f"\nmedian ms at {args.timing_size}px, round-robin ({args.rounds} rounds, {args.threads} threads):")
         for k, v in timing.items():
             print(f"  {k:50s} {v:8.1f} ms  {v / timing['fp32']:.2f}x fp32")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"run": portable(args.run), "checkpoint": args.which, "step": info.get("step"),
-                                         "graph": args.graph, "normalization": args.normalization,
-                                         "rows": rows, "timing_size": args.timing_size,
-                                         "timing_ms": timing}, indent=1) + "\n")
+    write_result(args.json, {"run": portable(args.run), "checkpoint": args.which, "step": info.get("step"),
+                             "graph": args.graph, "normalization": args.normalization, "rows": rows,
+                             "timing_size": args.timing_size, "timing_ms": timing})
     return 0
 
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from exporter.bench.result_file import write_result
 from exporter.bench.sources import BenchError, portable
 from kiosk.inference.sessions import SessionSettings
 
@@ -443,10 +444,7 @@ def main(argv: list[str], prog: str = "vtkiosk bench threads") -> int:
         print("\n" + lanes_table(result["lanes"]))
         for line in result["lane_ratios"]:
             print(f"  {line}")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
-        print(f"wrote {args.json}")
+    write_result(args.json, result)
     if args.plot is not None:
         print(f"wrote {plot(result, args.plot)}")
     return 0
