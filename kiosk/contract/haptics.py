@@ -225,7 +225,7 @@ def calibrate_scale(gx: object, gy: object, mask: object | None = None, *, quant
 
 
 def _contact_energy(gx: object, gy: object, mask: object | None) -> np.ndarray:
-    """gx^2 + gy^2 at the contact pixels, flattened and finite: what both calibrations take quantiles of."""
+    """gx^2 + gy^2 at the contact pixels, finite, as one flat array: what both calibrations take quantiles of."""
     ax, ay = sanitize_gradients(gx, gy, dtype=np.float64)
     gz = ax * ax + ay * ay
     if mask is not None:
@@ -233,7 +233,7 @@ def _contact_energy(gx: object, gy: object, mask: object | None) -> np.ndarray:
         if m.shape != gz.shape:
             raise InputError(f"mask must have the gradients' shape {gz.shape}; got {m.shape}")
         gz = gz[m.astype(bool)]
-    return gz[np.isfinite(gz)].ravel()
+    return gz[np.isfinite(gz)]
 
 
 def _min_max(a: np.ndarray) -> np.ndarray:
