@@ -17,6 +17,7 @@ import re
 import tempfile
 from pathlib import Path
 
+from kiosk.bundle.durable import atomic_write
 from kiosk.contract.errors import KioskError
 from kiosk.study.bundles import open_study_bundles
 from kiosk.study.config import StudyConfig, load_study_config
@@ -114,11 +115,7 @@ def export_page(config_path: str | Path, out: str | Path, *, participants: list[
         "/*STYLE*/": (STATIC / "study.css").read_text(), "<!--SCREENS-->": _shared_screens(),
         "/*DATA*/": blob, "/*ABOUT*/": (STATIC / "study-about.js").read_text(),
         "/*SCRIPT*/": (HERE / "webpage.js").read_text()})
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(html, encoding="utf-8")
-    tmp.replace(out)
+    atomic_write(Path(out), html.encode("utf-8"))
     return len(codes)
 
 
