@@ -18,6 +18,16 @@ from kiosk.contract.graph import OUTPUT_CHANNELS
 from kiosk.contract.sketch import rasterize
 
 
+def save_graph(path: Path, name: str, nodes: list, inputs: list, outs: list) -> Path:
+    """Check and save a test graph at the opset and IR version the kiosk's engines load."""
+    model = helper.make_model(helper.make_graph(nodes, name, inputs, outs),
+                              opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
 def tiny_graph(path: Path, outputs: list[str], *, poison: bool = False) -> Path:
     """visual = tanh(concat(sketch, mask, sketch)) * mask; tactile = 0.1 * concat(sketch, -sketch) * mask."""
     dims = [1, 1, "H", "W"]
@@ -42,12 +52,7 @@ def tiny_graph(path: Path, outputs: list[str], *, poison: bool = False) -> Path:
                   helper.make_node("Mul", ["t2", "k"], ["t3"]),
                   helper.make_node("Mul", ["t3", "mask"], ["tactile"])]
         outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
-    model = helper.make_model(helper.make_graph(nodes, "tiny", inputs, outs),
-                              opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
+    return save_graph(path, "tiny", nodes, inputs, outs)
 
 
 def conv_graph(path: Path, outputs: list[str], *, poison: bool = False, seed: int = 7) -> Path:

@@ -11,14 +11,13 @@ import json
 import math
 
 import numpy as np
-import onnx
 import pytest
 from onnx import TensorProto, helper
 
 from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
 from kiosk.bench.felt import dominant_period_px
-from tests.kiosk.bundle_factory import base_manifest, make_assets
+from tests.kiosk.bundle_factory import base_manifest, make_assets, save_graph
 from tests.kiosk.daemon_fixtures import http, render, start_daemon
 
 PERIOD_PX = 12          # height period in model pixels
@@ -56,12 +55,7 @@ def sinusoid_graph(path, outputs):
     if "tactile" in outputs:
         nodes.append(helper.make_node("Concat", ["gx", "gy"], ["tactile"], axis=1))
         outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
-    model = helper.make_model(helper.make_graph(nodes, "sinusoid", inputs, outs),
-                              opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
+    return save_graph(path, "sinusoid", nodes, inputs, outs)
 
 
 @pytest.fixture()

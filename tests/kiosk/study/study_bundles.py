@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import onnx
 from onnx import TensorProto, helper
 
 from exporter.bundle_writer import write_bundle
 from exporter.keys import generate_keypair, load_private_key
-from tests.kiosk.bundle_factory import base_manifest, make_assets
+from tests.kiosk.bundle_factory import base_manifest, make_assets, save_graph
 
 GAINS = {"ours": 0.10, "pix2pix": 0.04, "pix2pixhd": 0.06, "gaugan": 0.05, "abl": 0.08, "ours-no-gan": 0.09,
          "ours-no-rec": 0.07}
@@ -38,12 +37,7 @@ def gain_graph(path: Path, outputs: list[str], gain: float) -> Path:
                   helper.make_node("Concat", ["mask", "neg"], ["t2"], axis=1),
                   helper.make_node("Mul", ["t2", "k"], ["t3"]), helper.make_node("Mul", ["t3", "mask"], ["tactile"])]
         outs.append(helper.make_tensor_value_info("tactile", TensorProto.FLOAT, [1, 2, "H", "W"]))
-    model = helper.make_model(helper.make_graph(nodes, "gain", inputs, outs),
-                              opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
+    return save_graph(path, "gain", nodes, inputs, outs)
 
 
 def make_study_bundles(root: Path, conditions: list[str], garments: list[str], *,
