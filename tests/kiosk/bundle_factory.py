@@ -18,9 +18,9 @@ from kiosk.contract.graph import OUTPUT_CHANNELS
 from kiosk.contract.sketch import rasterize
 
 
-def save_graph(path: Path, name: str, nodes: list, inputs: list, outs: list) -> Path:
+def save_graph(path: Path, name: str, nodes: list, inputs: list, outs: list, initializer: list = ()) -> Path:
     """Check and save a test graph at the opset and IR version the kiosk's engines load."""
-    model = helper.make_model(helper.make_graph(nodes, name, inputs, outs),
+    model = helper.make_model(helper.make_graph(nodes, name, inputs, outs, initializer=list(initializer)),
                               opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     onnx.checker.check_model(model)
@@ -82,12 +82,7 @@ def conv_graph(path: Path, outputs: list[str], *, poison: bool = False, seed: in
             nodes.append(helper.make_node("Add", [f"t_{name}", "nan"], [f"t_{name}_p"]))
         nodes.append(helper.make_node("Mul", [f"t_{name}_p" if poison else f"t_{name}", "mask"], [name]))
         outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, [1, ch, "H", "W"]))
-    model = helper.make_model(helper.make_graph(nodes, "conv", inputs, outs, initializer=inits),
-                              opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
+    return save_graph(path, "conv", nodes, inputs, outs, inits)
 
 
 def make_assets(folder: Path) -> dict[str, Path]:
