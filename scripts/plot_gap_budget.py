@@ -6,8 +6,8 @@ Why a picture: the target's distance is the sum of three bounds measured in diff
 of each table, the wave fits); side by side they show that no bar a model could reach from its touches comes near
 the line.
 
-    .venv/bin/python scripts/plot_gap_budget.py --ours txr-lift \
-        --tables docs/compare_1k/mirrors/blind2_{kn,ss,ct,dn}/compare.json \
+    .venv/bin/python scripts/plot_gap_budget.py --ours txr-auto \
+        --tables docs/compare_1k/mirrors/blind3_{kn,ss,ct,dn}/compare.json \
         --phase docs/compare_1k/phase_from_touches --out docs/compare_1k/phase_from_touches/gap_budget.png
 """
 from __future__ import annotations

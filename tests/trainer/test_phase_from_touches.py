@@ -86,17 +86,20 @@ def budget():
 
 
 def test_gap_budget_from_the_committed_tables(budget, tmp_path, capsys):
-    tables = [str(DOCS / "mirrors" / f"blind2_{g}" / "compare.json") for g in ("kn", "ss", "ct", "dn")]
+    tables = [str(DOCS / "mirrors" / f"blind3_{g}" / "compare.json") for g in ("kn", "ss", "ct", "dn")]
     out = tmp_path / "budget.png"
-    assert budget.main(["--ours", "txr-lift", "--tables", *tables, "--phase", str(DOCS / "phase_from_touches"),
+    assert budget.main(["--ours", "txr-auto", "--tables", *tables, "--phase", str(DOCS / "phase_from_touches"),
                         "--out", str(out)]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     lines = capsys.readouterr().out.splitlines()
     mean = next(line for line in lines if line.startswith("mean"))
-    # the committed figures: ours 24 %, shape-oracle 35 %, the recorded touches' fit 19 %, under the 60 % target
-    assert mean.split()[1:4] == ["24%", "35%", "19%"]
-    bars = budget.table_bars(DOCS / "mirrors" / "blind2_ct" / "compare.json", "txr-lift")
-    assert bars["CorduroyTrousers"]["ours"] == pytest.approx(0.328, abs=0.005)
+    # the committed figures (third blind test): ours 27 %, shape-oracle 35 %, the recorded touches' fit 19 %
+    assert mean.split()[1:4] == ["27%", "35%", "19%"]
+    bars = budget.table_bars(DOCS / "mirrors" / "blind3_ct" / "compare.json", "txr-auto")
+    assert bars["CorduroyTrousers"]["ours"] == pytest.approx(0.367, abs=0.005)
+    # the second test's runs still read as they were drawn
+    assert budget.table_bars(DOCS / "mirrors" / "blind2_ct" / "compare.json", "txr-lift")[
+        "CorduroyTrousers"]["ours"] == pytest.approx(0.328, abs=0.005)
 
 
 def test_gap_budget_refuses_a_missing_method_or_fit(budget, tmp_path):
