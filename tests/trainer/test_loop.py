@@ -195,7 +195,8 @@ def test_resume_refuses_a_changed_recipe_and_allows_execution_changes(synth, tmp
         Trainer(load_config("tiny", overrides=base), next(p for p in synth.iterdir() if p != _garment(synth)),
                 tmp_path / "r", resume=True)
     # how the run is executed may change
-    t = Trainer(load_config("tiny", overrides=[*base, "train.threads=1", "train.log_every=5", "train.progress=false"]),
+    t = Trainer(load_config("tiny", overrides=[*base, "train.threads=1", "train.log_every=5", "train.progress=false",
+                                                     "train.ckpt_every=3"]),
                 _garment(synth), tmp_path / "r", resume=True)
     assert t.step == 1
     # through the command line: a clear error, the run untouched
