@@ -123,6 +123,9 @@ class LossConfig:
     # Weave-scale visual loss (trainer/recipe/weave.py): L1 between the fine log-luminance bands of the generated and
     # the real photo, the bands the shading relief reads (`--relief shade`); 0 = off.
     visual_weave: float = 0.0
+    # Photometric tactile loss (trainer/recipe/shading.py): the share of the real photo's fine log-luminance bands
+    # that a per-crop linear mix of the relief's slopes leaves unexplained, over the whole object; 0 = off.
+    tactile_shading: float = 0.0
     # Registration-tolerant touches (trainer/recipe/registration.py): every tactile term sees the generated relief at
     # the best integer shift within this many px of where each patch was recorded; 0 = at the recorded corner.
     tactile_shift: int = 0
@@ -263,6 +266,8 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"loss.tactile_shift is a shift radius in px, 0..8; got {cfg.loss.tactile_shift}")
     if cfg.loss.visual_weave < 0:
         raise ConfigError(f"loss.visual_weave must be >= 0; got {cfg.loss.visual_weave}")
+    if cfg.loss.tactile_shading < 0:
+        raise ConfigError(f"loss.tactile_shading must be >= 0; got {cfg.loss.tactile_shading}")
     if cfg.loss.tactile_texture < 0:
         raise ConfigError(f"loss.tactile_texture must be >= 0; got {cfg.loss.tactile_texture}")
     for key in ("transpose", "flip"):

@@ -22,6 +22,7 @@ from trainer.models.discriminators import MultiScaleD
 from trainer.models.generator import TwoBranchUNet
 from trainer.recipe.diffaug import DiffAugment
 from trainer.recipe.registration import best_shift_patches
+from trainer.recipe.shading import shading_loss
 from trainer.recipe.texture import TextureStatsLoss
 from trainer.recipe.weave import weave_loss
 from trainer.sampling import PATCH, Batch, cut
@@ -177,6 +178,8 @@ class Ours(Method):
             if lc.tactile_perceptual:
                 out["t_perc"] = lc.tactile_perceptual * per_channel(self.perceptual, tp * batch.contact,
                                                                      gt * batch.contact)
+        if lc.tactile_shading and self.tactile_rec:
+            out["t_shade"] = lc.tactile_shading * shading_loss(tactile_fake, batch.visual, batch.mask)
         if self.texture is not None:
             out["t_tex"] = lc.tactile_texture * self.texture(tp, gt, batch.contact)
         if self.tactile_gan and gan:

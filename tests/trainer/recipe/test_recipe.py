@@ -20,7 +20,7 @@ from trainer.recipe.texture import TextureStatsLoss
 
 torch.set_num_threads(2)
 RECIPE = ["optim.lr_policy=linear", "loss.diffaug=color,translation,cutout", "train.ema=0.9",
-          "loss.tactile_texture=5", "loss.visual_weave=10"]
+          "loss.tactile_texture=5", "loss.visual_weave=10", "loss.tactile_shading=1"]
 
 
 @given(steps=st.integers(1, 5000), frac=st.floats(0, 1), data=st.data())
@@ -203,7 +203,7 @@ def test_texture_loss_zero_on_equal_and_grows_with_contrast_error():
 
 def test_recipe_options_are_validated():
     for bad in ("optim.lr_policy=cosine", "optim.decay_from=1.5", "train.ema=1", "loss.tactile_texture=-1",
-                "loss.visual_weave=-1", "loss.diffaug=color,warp"):
+                "loss.visual_weave=-1", "loss.tactile_shading=-1", "loss.diffaug=color,warp"):
         with pytest.raises(ConfigError):
             load_config("tiny", overrides=[bad])
 
@@ -238,7 +238,8 @@ def test_resume_with_full_recipe_is_bit_identical_and_exports_the_average(synth,
     resumed = Trainer(cfg(), synth, tmp_path / "part", resume=True)
     resumed.run()
     _same_state(full, resumed)
-    assert "t_tex" in full.history[-1] and "v_weave" in full.history[-1] and full.history[-1]["lr_factor"] < 1.0
+    assert "t_tex" in full.history[-1] and "v_weave" in full.history[-1] and "t_shade" in full.history[-1]
+    assert full.history[-1]["lr_factor"] < 1.0
     net, _ = load_generator(tmp_path / "full", "latest")
     ema = full.method.ema.model.state_dict()
     assert all(torch.equal(v, ema[k]) for k, v in net.state_dict().items())
