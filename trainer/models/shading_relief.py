@@ -77,6 +77,15 @@ def blur(a: torch.Tensor, sigma: float) -> torch.Tensor:
     return F.conv2d(F.pad(a, (0, 0, r, r), mode="replicate"), g.view(1, 1, -1, 1))
 
 
+def dog_bands(a: torch.Tensor) -> torch.Tensor:
+    """(N, C, len(BANDS), H, W): each channel of (N, C, H, W) as its differences of Gaussians, one per band (the
+    weave-scale visual loss and the photometric tactile loss compare these)."""
+    n, c, h, w = a.shape
+    flat = a.reshape(n * c, 1, h, w)
+    blurred = {s: blur(flat, s) for s in sorted({s for band in BANDS for s in band})}
+    return torch.cat([blurred[s1] - blurred[s2] for s1, s2 in BANDS], 1).reshape(n, c, len(BANDS), h, w)
+
+
 def log_luma(visual: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W): the log-luminance of a [-1, 1] RGB image, finite for black pixels."""
     rgb = ((visual + 1.0) * 0.5).clamp(FLOOR, 1.0)

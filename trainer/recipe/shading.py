@@ -6,14 +6,15 @@ everywhere on the object and in the frame the full-field truth shares: under a l
 log-luminance is, to first order, the height's derivative along the light (linear shape from shading), so it is a
 fixed linear mix of the same band of the two slopes. Per crop and band the mix (the lamp's direction and strength,
 never given; a mirrored crop has its own) is the least-squares fit, and the loss is the share of the photo's band
-the fit leaves unexplained (1 - R^2, in [0, 1]). It is blind to the relief's scale, which the touches set, and
-trains the tactile head only (the photo is the data's).
+the fit leaves unexplained (1 - R^2, in [0, 1]). It is blind to the relief's scale, which the touches set, and its
+gradient enters the generator through the tactile output only (the photo is the data's; the shared encoder still
+moves, so the generated photo can too).
 """
 from __future__ import annotations
 
 import torch
 
-from trainer.models.shading_relief import BANDS, blur, log_luminance
+from trainer.models.shading_relief import dog_bands, log_luminance
 
 RIDGE = 1e-3      # relative ridge on the 2 x 2 normal equations: a flat relief explains nothing, stably
 # The photo band's energy floor per object pixel (a band of 0.1 % contrast): a photo with no shading, or no object,
@@ -21,22 +22,12 @@ RIDGE = 1e-3      # relative ridge on the 2 x 2 normal equations: a flat relief 
 FLOOR = 1e-6
 
 
-def bands(a: torch.Tensor) -> torch.Tensor:
-    """(N, C, len(BANDS), H, W): the differences of Gaussians of each channel of (N, C, H, W)."""
-    n, c, h, w = a.shape
-    flat = a.reshape(n * c, 1, h, w)
-    sigmas = sorted({s for band in BANDS for s in band})
-    blurred = {s: blur(flat, s) for s in sigmas}
-    out = torch.cat([blurred[s1] - blurred[s2] for s1, s2 in BANDS], 1)
-    return out.reshape(n, c, len(BANDS), h, w)
-
-
 def unexplained(slopes: torch.Tensor, photo: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """(N, len(BANDS)): the share of each photo band's energy on the object that no mix of the slopes' bands
     explains (1 = none of it, 0 = all of it)."""
     m = (mask > 0.5).to(slopes.dtype)
-    g = bands(slopes * m)                               # (N, 2, B, H, W)
-    b = bands(log_luminance(photo, mask))[:, 0]         # (N, B, H, W); the background filled: no silhouette cliff
+    g = dog_bands(slopes * m)                           # (N, 2, B, H, W)
+    b = dog_bands(log_luminance(photo, mask))[:, 0]     # (N, B, H, W); background filled: no silhouette cliff
     gx, gy = g[:, 0], g[:, 1]
 
     def dot(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -44,7 +35,7 @@ def unexplained(slopes: torch.Tensor, photo: torch.Tensor, mask: torch.Tensor) -
 
     sxx, sxy, syy = dot(gx, gx), dot(gx, gy), dot(gy, gy)
     sxb, syb, sbb = dot(gx, b), dot(gy, b), dot(b, b)
-    lam = RIDGE * (sxx + syy) / 2 + 1e-12
+    lam = RIDGE * (sxx + syy) / 2 + 1e-12            # + a constant: a flat relief's system stays invertible
     a, d = sxx + lam, syy + lam
     det = a * d - sxy * sxy                             # > 0: a, d > |sxy| by Cauchy-Schwarz plus the ridge
     explained = (d * sxb * sxb - 2 * sxy * sxb * syb + a * syb * syb) / det

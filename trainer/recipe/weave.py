@@ -9,15 +9,12 @@ from __future__ import annotations
 
 import torch
 
-from trainer.models.shading_relief import BANDS, blur, log_luma
+from trainer.models.shading_relief import BANDS, dog_bands, log_luma
 
 
 def fine_bands(visual: torch.Tensor) -> torch.Tensor:
     """(N, len(BANDS), H, W): differences of Gaussians of the image's log-luminance, one channel a band."""
-    lum = log_luma(visual)
-    sigmas = sorted({s for band in BANDS for s in band})
-    blurred = {s: blur(lum, s) for s in sigmas}
-    return torch.cat([blurred[s1] - blurred[s2] for s1, s2 in BANDS], 1)
+    return dog_bands(log_luma(visual))[:, 0]
 
 
 def weave_loss(fake: torch.Tensor, real: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -9,8 +9,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trainer.models.shading_relief import BANDS
-from trainer.recipe.shading import bands, shading_loss, unexplained
+from trainer.models.shading_relief import BANDS, dog_bands
+from trainer.recipe.shading import shading_loss, unexplained
 
 torch.set_num_threads(2)
 SIDE = 64
@@ -56,7 +56,7 @@ def test_the_relief_that_shades_like_the_photo_explains_it_whatever_the_lamp(azi
 
 def test_bands_shape_and_the_empty_object():
     s = _relief()
-    assert bands(s).shape == (1, 2, len(BANDS), SIDE, SIDE)
+    assert dog_bands(s).shape == (1, 2, len(BANDS), SIDE, SIDE)
     photo = _photo(s, 1.0)
     assert shading_loss(s, photo, torch.zeros(1, 1, SIDE, SIDE)).item() == 0.0      # no object: 0, not 0 / 0
     flat_photo = torch.full_like(photo, 0.2)                                          # no shading at all
