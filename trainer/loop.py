@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import time
 from collections.abc import Callable
@@ -28,6 +29,7 @@ from trainer.methods import get_method
 from trainer.progress import Progress
 from trainer.recipe.schedule import apply_lr, lr_factor
 from trainer.metrics import l1, psnr, tactile_patch_metrics
+from trainer.models.weave_waves import weave_frequencies
 from trainer.sampling import GarmentData, cut
 from trainer.sheets import curves_png, grid, label, normal_tile, save_png, to_uint8, friction_tile
 
@@ -85,6 +87,8 @@ class Trainer:
                                   f"{cfg.method} has one loss over both outputs")
         self.data = GarmentData(Path(garment_dir), cfg.data, seed=cfg.train.seed)
         self.method = get_method(cfg.method)(cfg, side=self.data.side, dist=dist, device=str(self.device))
+        if cfg.model.weave_waves:   # before the average copies G; a resumed run's checkpoint holds the same values
+            self._set_waves(cfg.model.weave_waves)
         self.method.attach_ema(cfg.train.ema, cfg.train.ema_ramp, cfg.train.ema_probe_ramp)
         self.val = self.data.eval_set("val").to(self.device)
         self.step = 0
@@ -113,6 +117,20 @@ class Trainer:
                 "train_state": {"method": m.state_dict(), "history": self.history, "val": self.val_history,
                                 "best": self.best, "train_seconds": self.train_seconds,
                                 "torch_rng": torch.get_rng_state()}}
+
+    def _set_waves(self, count: int) -> None:
+        """The weave waves' frequencies, read off the training photo (trainer/models/weave_waves.py)."""
+        g = self.method.generator
+        if not hasattr(g, "set_waves"):
+            raise ConfigError(f"model.weave_waves needs the two-branch generator (ours and its ablations); "
+                              f"{self.cfg.method} has none")
+        try:
+            k = weave_frequencies(self.data.g.visual, self.data.g.mask, count)
+        except ValueError as exc:
+            raise ConfigError(f"{self.data.g.name}: {exc}") from None
+        g.set_waves(k)
+        periods = ", ".join(f"{2 * math.pi / max(math.hypot(*kk), 1e-12):.1f}" for kk in k.tolist())
+        log.info("weave waves of %s: periods %s px", self.data.g.name, periods)
 
     def _resume(self) -> None:
         ck = read_checkpoint(self.out, "latest")

@@ -19,6 +19,7 @@ from kiosk.contract.sketch import network_input
 from trainer.augment import eval_crop_origin, random_crop_origin, resolve_crop
 from trainer.config import DataConfig
 from trainer.data.touchclothing import PATCH, Garment, PatchSet, extract_patches, friction_scale, load_garment
+from trainer.models.weave_waves import object_coords
 from trainer.recipe.mirror import flip_batch, transpose_batch
 
 
@@ -38,12 +39,18 @@ class Batch:
     origin: tuple[int, int]
     mirrored: bool = False   # mirrored across the crop's diagonal or left to right (data.transpose, data.flip)
     twin: "Batch | None" = None   # the same crop mirrored, trained beside it on the tactile side (data.mirror_extra)
+    coords: torch.Tensor | None = None   # (1, 2, C, C) weave-wave coordinates of a mirrored crop; None: the mask's
+
+    def wave_coords(self) -> torch.Tensor:
+        """Each pixel's weave-wave (u, v) (trainer/models/weave_waves.py): a mirrored crop's are its pixels' own,
+        mirrored with them; a plain crop's are what the generator computes from its mask anyway."""
+        return object_coords(self.mask) if self.coords is None else self.coords
 
     def to(self, device: torch.device) -> "Batch":
         """The same batch with its tensors on `device` (data is drawn on the CPU, seeded, whatever trains it)."""
         if self.sketch.device == torch.device(device):
             return self
-        moved = {k: getattr(self, k) for k in ("sketch", "mask", "visual", "gx", "gy", "contact")}
+        moved = {k: getattr(self, k) for k in ("sketch", "mask", "visual", "gx", "gy", "contact", "coords")}
         return replace(self, **{k: (v.to(device) if v is not None else None) for k, v in moved.items()},
                        twin=None if self.twin is None else self.twin.to(device))
 

@@ -47,7 +47,8 @@ class Ours(Method):
         m, o, lc = cfg.model, cfg.optim, cfg.loss
         self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip,
                                        tactile_mult=m.tactile_mult,
-                                       tactile_reads_visual=m.tactile_reads_visual).to(self.device)
+                                       tactile_reads_visual=m.tactile_reads_visual,
+                                       weave_waves=m.weave_waves).to(self.device)
         self.G = self._wrap_generator()
         betas = tuple(o.betas)
         self.opts["G"] = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=betas)
@@ -212,10 +213,14 @@ class Ours(Method):
         self.aug_visual.reseed(self.cfg.train.seed * 1_000_003 + 2 * step)
         self.aug_tactile.reseed(self.cfg.train.seed * 1_000_003 + 2 * step + 1)
         twin = batch.twin
+        # the weave waves' coordinates travel with a mirrored crop's pixels (trainer/recipe/mirror.py)
+        waves = self.cfg.model.weave_waves > 0
         if twin is None:
-            visual_fake, tactile_fake = self.G(batch.sketch, batch.mask)
+            more = {"coords": batch.wave_coords()} if waves else {}
+            visual_fake, tactile_fake = self.G(batch.sketch, batch.mask, **more)
         else:   # one pass over both crops (G's norms are per image), so a distributed G sees one forward
-            v2, t2 = self.G(torch.cat([batch.sketch, twin.sketch]), torch.cat([batch.mask, twin.mask]))
+            more = {"coords": torch.cat([batch.wave_coords(), twin.wave_coords()])} if waves else {}
+            v2, t2 = self.G(torch.cat([batch.sketch, twin.sketch]), torch.cat([batch.mask, twin.mask]), **more)
             (visual_fake, twin_visual), (tactile_fake, twin_tactile) = v2.split(1), t2.split(1)
         # Discriminators first, on detached fakes.
         if self.visual_gan and self.trains_visual(batch):

@@ -26,6 +26,7 @@ from torch import nn
 
 from kiosk.contract.graph import GRAPH_OUTPUTS, GRID_MULTIPLE
 from trainer.models.posenc import masked_input
+from trainer.models.weave_waves import object_coords, wave_mix
 
 
 @dataclass
@@ -40,6 +41,7 @@ class GeneratorConfig:
     outer_skip: bool = False
     tactile_mult: int = 1   # width multiplier of the tactile head's own layers (up3..up0); 1 = the paper's
     tactile_reads_visual: bool = False   # the tactile head's up2..up0 also take the visual head's features
+    weave_waves: int = 0   # plane waves each head mixes into its output (trainer/models/weave_waves.py); 0 = off
 
 
 def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = False) -> nn.Sequential:
@@ -52,10 +54,10 @@ def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = Fal
     return nn.Sequential(*layers)
 
 
-def _up(cin: int, cout: int, *, outermost: bool = False) -> nn.Sequential:
+def _up(cin: int, cout: int, *, outermost: bool = False, tanh: bool = True) -> nn.Sequential:
     conv = nn.ConvTranspose2d(cin, cout, 4, 2, 1)
     if outermost:
-        return nn.Sequential(nn.ReLU(), conv, nn.Tanh())
+        return nn.Sequential(nn.ReLU(), conv, nn.Tanh()) if tanh else nn.Sequential(nn.ReLU(), conv)
     return nn.Sequential(nn.ReLU(), conv, nn.InstanceNorm2d(cout, affine=False))
 
 
@@ -66,8 +68,9 @@ class Branch(nn.Module):
     shared encoder and trunk."""
 
     def __init__(self, *, widths: list[int], out: int, outer_skip: bool, mult: int = 1,
-                 reads: list[int] | None = None):
+                 reads: list[int] | None = None, waves: int = 0):
         super().__init__()
+        self.out, self.waves = out, waves
         # widths[i] = channels of encoder level i output (down_i), i = 0..7; `reads` = the channels of another
         # head's up3, up2, up1 outputs, taken as extra inputs of this head's up2, up1, up0
         self.outer_skip = outer_skip
@@ -76,7 +79,9 @@ class Branch(nn.Module):
         self.up3 = _up(2 * widths[4], own[2])
         self.up2 = _up(widths[2] + own[2] + extra[0], own[1])
         self.up1 = _up(widths[1] + own[1] + extra[1], own[0])
-        self.up0 = _up((widths[0] if outer_skip else 0) + own[0] + extra[2], out, outermost=True)
+        # with waves, up0 also gives each output channel a sin and a cos weight per wave; tanh after the mix
+        self.up0 = _up((widths[0] if outer_skip else 0) + own[0] + extra[2], out * (1 + 2 * waves), outermost=True,
+                       tanh=not waves)
 
     @property
     def widths_out(self) -> list[int]:
@@ -84,8 +89,8 @@ class Branch(nn.Module):
         return [self.up3[1].out_channels, self.up2[1].out_channels, self.up1[1].out_channels]
 
     def forward(self, trunk: torch.Tensor, skips: list[torch.Tensor],
-                read: list[torch.Tensor] | None = None) -> torch.Tensor:
-        return self.last(self.features(trunk, skips, read), skips, read)
+                read: list[torch.Tensor] | None = None, waves: tuple | None = None) -> torch.Tensor:
+        return self.last(self.features(trunk, skips, read), skips, read, waves)
 
     def features(self, trunk: torch.Tensor, skips: list[torch.Tensor],
                  read: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
@@ -97,10 +102,14 @@ class Branch(nn.Module):
         return [y3, y2, y1]
 
     def last(self, features: list[torch.Tensor], skips: list[torch.Tensor],
-             read: list[torch.Tensor] | None = None) -> torch.Tensor:
-        """up0, the output layer, on top of `features`."""
+             read: list[torch.Tensor] | None = None, waves: tuple | None = None) -> torch.Tensor:
+        """up0, the output layer, on top of `features`; `waves` = (coords, k) when the head mixes weave waves."""
         inputs = ([skips[0]] if self.outer_skip else []) + [features[-1], *_extra(read)[2]]
-        return self.up0(torch.cat(inputs, 1))
+        y = self.up0(torch.cat(inputs, 1))
+        if not self.waves:
+            return y
+        coords, k = waves
+        return torch.tanh(y[:, :self.out] + wave_mix(y[:, self.out:], coords, k, self.out))
 
 
 def _extra(read: list[torch.Tensor] | None) -> list[list[torch.Tensor]]:
@@ -120,12 +129,14 @@ class TwoBranchUNet(nn.Module):
 
     def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
                  max_mult: int = 8, outer_skip: bool = False, tactile_mult: int = 1,
-                 tactile_reads_visual: bool = False):
+                 tactile_reads_visual: bool = False, weave_waves: int = 0):
         super().__init__()
         if tactile_mult < 1:
             raise ValueError(f"tactile_mult must be >= 1; got {tactile_mult}")
+        if weave_waves < 0:
+            raise ValueError(f"weave_waves must be >= 0; got {weave_waves}")
         self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip, tactile_mult,
-                                      bool(tactile_reads_visual))
+                                      bool(tactile_reads_visual), int(weave_waves))
         self.pe_dim = pe_dim
         w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
         cin = 1 + 2 * pe_dim
@@ -135,9 +146,18 @@ class TwoBranchUNet(nn.Module):
         self.up6 = _up(2 * w[6], w[5])
         self.up5 = _up(2 * w[5], w[4])
         self.up4 = _up(2 * w[4], w[3])
-        self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip)
+        self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip, waves=weave_waves)
         self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip, mult=tactile_mult,
-                              reads=self.visual.widths_out if tactile_reads_visual else None)
+                              reads=self.visual.widths_out if tactile_reads_visual else None, waves=weave_waves)
+        if weave_waves:   # set from the training photo before training (set_waves); a checkpoint restores it
+            self.register_buffer("wave_k", torch.zeros(weave_waves, 2))
+
+    def set_waves(self, k) -> None:
+        """The waves' frequencies (K, 2) rad/px, read off the training photo (weave_waves.weave_frequencies)."""
+        k = torch.as_tensor(k, dtype=torch.float32)
+        assert self.config.weave_waves and k.shape == self.wave_k.shape and bool(torch.isfinite(k).all()), \
+            f"expected {self.config.weave_waves} finite (kx, ky) pairs; got {tuple(k.shape)}"
+        self.wave_k.copy_(k)
 
     @classmethod
     def from_config(cls, cfg: dict | GeneratorConfig) -> "TwoBranchUNet":
@@ -170,17 +190,23 @@ class TwoBranchUNet(nn.Module):
         y = self.up4(torch.cat([skips[4], y], 1))
         return y, skips
 
-    def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full",
+                coords: torch.Tensor | None = None):
+        """`coords`: the weave waves' (u, v) per pixel (N, 2, H, W), given only in training, where a mirrored crop
+        carries its pixels' own; otherwise computed from the mask (weave_waves.object_coords)."""
         assert kind in GRAPH_OUTPUTS, f"kind must be one of {', '.join(GRAPH_OUTPUTS)}; got {kind!r}"
         trunk, skips = self.encode(sketch, mask)
+        waves = None
+        if self.config.weave_waves:
+            waves = (object_coords(mask) if coords is None else coords, self.wave_k)
         heads: dict[str, torch.Tensor] = {}
         if self.config.tactile_reads_visual and "tactile" in GRAPH_OUTPUTS[kind]:
             # the visual head's last layer is skipped when only the tactile output is asked for
             seen = self.visual.features(trunk, skips)
             if "visual" in GRAPH_OUTPUTS[kind]:
-                heads["visual"] = self.visual.last(seen, skips)
-            heads["tactile"] = self.tactile(trunk, skips, seen)
-        outs = tuple((heads[name] if name in heads else getattr(self, name)(trunk, skips)) * mask
+                heads["visual"] = self.visual.last(seen, skips, waves=waves)
+            heads["tactile"] = self.tactile(trunk, skips, seen, waves)
+        outs = tuple((heads[name] if name in heads else getattr(self, name)(trunk, skips, waves=waves)) * mask
                      for name in GRAPH_OUTPUTS[kind])
         return outs if len(outs) > 1 else outs[0]
 

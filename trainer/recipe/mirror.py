@@ -25,8 +25,9 @@ if TYPE_CHECKING:
 def transpose_batch(b: "Batch") -> "Batch":
     """`b` mirrored across the crop's main diagonal: images and patches transposed, patch corners (x, y) -> (y, x),
     gx <-> gy. The crop's origin in the padded frame is kept (it says where the crop came from, not its layout)."""
-    t = lambda x: x.transpose(-1, -2).contiguous()  # noqa: E731 - one line, used six times
+    t = lambda x: x.transpose(-1, -2).contiguous()  # noqa: E731 - one line, used seven times
     return replace(b, sketch=t(b.sketch), mask=t(b.mask), visual=None if b.visual is None else t(b.visual),
+                   coords=t(b.wave_coords()),
                    gx=t(b.gy), gy=t(b.gx), contact=t(b.contact),
                    origins=np.ascontiguousarray(b.origins[:, ::-1]),
                    unpaired=np.ascontiguousarray(b.unpaired[:, ::-1]), mirrored=True)
@@ -35,7 +36,7 @@ def transpose_batch(b: "Batch") -> "Batch":
 def flip_batch(b: "Batch") -> "Batch":
     """`b` mirrored left to right: images and patches flipped along x, patch corners x -> side - 32 - x, gx -> -gx.
     The crop's origin in the padded frame is kept, as for the diagonal."""
-    f = lambda x: torch.flip(x, dims=(-1,))  # noqa: E731 - one line, used six times
+    f = lambda x: torch.flip(x, dims=(-1,))  # noqa: E731 - one line, used seven times
     side = b.sketch.shape[-1]
 
     def corners(o: np.ndarray) -> np.ndarray:
@@ -44,5 +45,5 @@ def flip_batch(b: "Batch") -> "Batch":
         return o
 
     return replace(b, sketch=f(b.sketch), mask=f(b.mask), visual=None if b.visual is None else f(b.visual),
-                   gx=-f(b.gx), gy=f(b.gy), contact=f(b.contact),
+                   coords=f(b.wave_coords()), gx=-f(b.gx), gy=f(b.gy), contact=f(b.contact),
                    origins=corners(b.origins), unpaired=corners(b.unpaired), mirrored=True)

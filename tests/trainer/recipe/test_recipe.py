@@ -20,7 +20,7 @@ from trainer.recipe.texture import TextureStatsLoss
 
 torch.set_num_threads(2)
 RECIPE = ["optim.lr_policy=linear", "loss.diffaug=color,translation,cutout", "train.ema=0.9",
-          "loss.tactile_texture=5", "loss.visual_weave=10", "loss.tactile_shading=1"]
+          "loss.tactile_texture=5", "loss.visual_weave=10", "loss.tactile_shading=1", "model.weave_waves=2"]
 
 
 @given(steps=st.integers(1, 5000), frac=st.floats(0, 1), data=st.data())
@@ -203,7 +203,8 @@ def test_texture_loss_zero_on_equal_and_grows_with_contrast_error():
 
 def test_recipe_options_are_validated():
     for bad in ("optim.lr_policy=cosine", "optim.decay_from=1.5", "train.ema=1", "loss.tactile_texture=-1",
-                "loss.visual_weave=-1", "loss.tactile_shading=-1", "loss.diffaug=color,warp"):
+                "loss.visual_weave=-1", "loss.tactile_shading=-1", "loss.diffaug=color,warp", "model.weave_waves=-1",
+                "model.weave_waves=33"):
         with pytest.raises(ConfigError):
             load_config("tiny", overrides=[bad])
 

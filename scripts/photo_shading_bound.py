@@ -1,0 +1,104 @@
+"""What a visual head that drew the real photo exactly would give the shading relief: a run's relief (under a mirror
+mode) with the shading relief read from its own photo and from the garment's real training photo, each fitted on the
+training touches as `--relief shade` / `shade-lift` fit it, scored on the full-field truth's outside angle.
+
+Why: the shading relief can only read back the weave the visual head places. The real photo in its place bounds what
+placing the weave in the photo (weave waves, trainer/models/weave_waves.py) can give the relief, before any is
+trained; the scores are the evaluator's own (trainer/evaluate.py), on the training sketch only.
+
+    .venv/bin/python scripts/photo_shading_bound.py runs/b3/KnitJacket/ours-txr-s12 --mirrors flip+transpose-energy
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from trainer.calibration import CalibrationError  # noqa: E402
+from trainer.checkpoint import CheckpointError  # noqa: E402
+from trainer.evaluate import Nets, Prediction, gap_closed, reference_predictions, score  # noqa: E402
+from trainer.models.mirror_modes import MODES  # noqa: E402
+from trainer.shading_fit import fit_shading  # noqa: E402
+
+METRIC = "full_angle_deg_outside"
+
+
+class RealPhoto(torch.nn.Module):
+    """The run's relief beside the real photo of its training crop in place of its visual output."""
+
+    def __init__(self, net: torch.nn.Module, photo: torch.Tensor):
+        super().__init__()
+        self.net, self.photo = net, photo
+
+    def forward(self, sketch: torch.Tensor, mask: torch.Tensor, kind: str = "full"):
+        assert sketch.shape[-2:] == self.photo.shape[-2:], "the real photo is the training crop's only"
+        return self.photo * mask, self.net(sketch, mask, "tactile")
+
+
+def bound(run: Path, which: str = "latest", mirrors: str = "none") -> dict:
+    p = Prediction(run, which, unseen=False, mirrors=mirrors)
+    ctx, nets = p.ctx, Nets(p.cfg.pretrained)
+    refs = {k: score(ctx, nets, None, t)[0] for k, (_, t, _, _) in reference_predictions(ctx).items()
+            if k in ("flat", "oracle", "shape-oracle")}
+    if "flat" not in refs or "oracle" not in refs:
+        raise SystemExit(f"{run}: its garment has no full-field truth (a synthetic garment is needed)")
+
+    def row(tac: torch.Tensor, **extra) -> dict:
+        s = score(ctx, nets, None, tac)[0]
+        return {METRIC: s[METRIC], "gap_closed": gap_closed(s, refs["flat"], refs["oracle"])[METRIC], **extra}
+
+    rows = {"as given": row(p.tac)}
+    for photo, net in (("own photo", p.net), ("real photo", RealPhoto(p.net, ctx.visual))):
+        for rule, floor in (("shade", None), ("shade-lift", 1.0)):
+            try:
+                fit = fit_shading(net, ctx.g, ctx.side, floor=floor)
+            except CalibrationError as exc:
+                rows[f"{rule}, {photo}"] = {"refused": str(exc)}
+                continue
+            with torch.no_grad():
+                _, tac = fit.wrap(net)(ctx.sketch, ctx.mask)
+            rows[f"{rule}, {photo}"] = row(tac, model_weight=fit.model_weight)
+    for name in ("shape-oracle", "flat", "oracle"):
+        if name in refs:
+            rows[name] = {METRIC: refs[name][METRIC],
+                          "gap_closed": gap_closed(refs[name], refs["flat"], refs["oracle"])[METRIC]}
+    return {"run": run.name, "garment": p.g.name, "mirrors": mirrors, "checkpoint": which, "rows": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", type=Path, help="run folders of a two-branch method on synthetic garments")
+    ap.add_argument("--which", default="latest", choices=("latest", "best"))
+    ap.add_argument("--mirrors", default="none", choices=sorted(MODES))
+    ap.add_argument("--json", type=Path, help="write the rows here")
+    a = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    out = []
+    for run in a.runs:
+        try:
+            b = bound(run, a.which, a.mirrors)
+        except CheckpointError as exc:
+            print(f"{run}: {exc}", file=sys.stderr)
+            return 2
+        out.append(b)
+        print(f"{run} ({b['garment']}, mirrors {a.mirrors}): outside angle (deg) / gap closed")
+        for name, r in b["rows"].items():
+            if "refused" in r:
+                print(f"  {name:24} refused: {r['refused']}")
+                continue
+            w = f"  (model weight {r['model_weight']:.2f})" if "model_weight" in r else ""
+            print(f"  {name:24} {r[METRIC]:7.3f}  {100 * r['gap_closed']:5.1f} %{w}")
+    if a.json:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        a.json.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
