@@ -128,3 +128,19 @@ def test_a_generator_with_waves_trains_its_weights_and_traces():
         traced = torch.jit.trace(GraphModule(g.eval(), "tactile"), (sk * mk, mk))
         mk2 = torch.roll(mk, shifts=(8, 16), dims=(2, 3))
         assert torch.allclose(traced(sk * mk2, mk2), g(sk * mk2, mk2, "tactile"), atol=1e-6)
+
+
+def test_an_exported_graph_places_the_waves_from_its_mask(tmp_path):
+    """The ONNX graph computes the coordinates from the mask it is given, not from the export's all-ones dummy."""
+    from exporter.graphs import export_graph, ort_session, torch_outputs
+    g = TwoBranchUNet(base=4, weave_waves=2).eval()
+    g.set_waves(np.array([[0.7, 0.2], [0.1, 1.1]], np.float32))
+    with torch.no_grad():   # weights that make the waves visible in the output
+        g.tactile.up0[1].bias[2:] = 0.5
+    path = export_graph(g, "tactile", tmp_path / "t.onnx", size=(256, 256))
+    mk = np.zeros((1, 1, 256, 256), np.float32)
+    mk[..., 60:230, 37:200] = 1
+    sk = (np.random.default_rng(0).random(mk.shape, dtype=np.float32) * 2 - 1) * mk
+    (ort_out,) = ort_session(path).run(None, {"sketch": sk, "mask": mk})
+    (ref,) = torch_outputs(g, "tactile", sk, mk)
+    assert np.abs(ort_out - ref).max() < 1e-4
