@@ -15,6 +15,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,6 +25,7 @@ from trainer.calibration import CalibrationError  # noqa: E402
 from trainer.checkpoint import CheckpointError  # noqa: E402
 from trainer.evaluate import Nets, Prediction, gap_closed, reference_predictions, score  # noqa: E402
 from trainer.models.mirror_modes import MODES  # noqa: E402
+from trainer.models.shading_relief import dog_bands, log_luminance  # noqa: E402
 from trainer.shading_fit import fit_shading  # noqa: E402
 
 METRIC = "full_angle_deg_outside"
@@ -68,7 +70,23 @@ def bound(run: Path, which: str = "latest", mirrors: str = "none") -> dict:
         if name in refs:
             rows[name] = {METRIC: refs[name][METRIC],
                           "gap_closed": gap_closed(refs[name], refs["flat"], refs["oracle"])[METRIC]}
-    return {"run": run.name, "garment": p.g.name, "mirrors": mirrors, "checkpoint": which, "rows": rows}
+    return {"run": run.name, "garment": p.g.name, "mirrors": mirrors, "checkpoint": which, "rows": rows,
+            "photo_band_correlation": band_correlation(p.vis, ctx)}
+
+
+def band_correlation(vis: torch.Tensor, ctx) -> list[float]:
+    """Per fine band, the correlation of the model's photo with the real one on the object off the training touches'
+    rectangles: how well the visual head places what the shading relief reads (1 = in place, 0 = unrelated)."""
+    own = dog_bands(log_luminance(vis, ctx.mask))[0, 0].numpy()
+    real = dog_bands(log_luminance(ctx.visual, ctx.mask))[0, 0].numpy()
+    off = ctx.obj & ~ctx.inside
+    out = []
+    for a, b in zip(own, real):
+        x, y = a[off].astype(np.float64), b[off].astype(np.float64)
+        x, y = x - x.mean(), y - y.mean()
+        den = float(np.sqrt((x * x).sum() * (y * y).sum()))
+        out.append(float((x * y).sum() / den) if den > 0 else 0.0)   # a flat photo is unrelated, not 0/0
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             w = f"  (model weight {r['model_weight']:.2f})" if "model_weight" in r else ""
             print(f"  {name:24} {r[METRIC]:7.3f}  {100 * r['gap_closed']:5.1f} %{w}")
+        print("  photo's fine bands against the real photo's off the touches, correlation: "
+              + " / ".join(f"{c:.3f}" for c in b["photo_band_correlation"]))
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps(out, indent=1) + "\n")

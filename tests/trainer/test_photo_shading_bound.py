@@ -23,7 +23,9 @@ def test_own_and_real_photo_are_scored_beside_the_references(pb, hard_one, tmp_p
         p for p in hard_one.iterdir() if p.is_dir()), run).run()
     out = tmp_path / "bound.json"
     assert pb.main([str(run), "--json", str(out)]) == 0
-    rows = json.loads(out.read_text())[0]["rows"]
+    got = json.loads(out.read_text())[0]
+    rows = got["rows"]
+    assert len(got["photo_band_correlation"]) == 2 and all(-1 <= c <= 1 for c in got["photo_band_correlation"])
     assert {"as given", "shade, own photo", "shade, real photo", "shade-lift, real photo", "flat", "oracle"} <= set(rows)
     assert rows["flat"]["gap_closed"] == pytest.approx(0) and rows["oracle"]["gap_closed"] == pytest.approx(1)
     real = rows["shade, real photo"]
