@@ -67,6 +67,7 @@ class ModelConfig:
     tactile_mult: int = 1       # width multiplier of G's tactile head (up3..up0); the paper's is 1
     tactile_reads_visual: bool = False   # G's tactile head also reads the visual head's features (not the paper's)
     weave_waves: int = 0        # plane waves at the photo's weave frequencies mixed into G's heads (exploratory)
+    weave_waves_heads: str = "both"   # which heads mix them: both, or the visual head only
     d_ndf: int = 8
     d_layers: int = 3
     d_scales: int = 3
@@ -250,6 +251,8 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"model.tactile_mult must be >= 1; got {cfg.model.tactile_mult}")
     if not 0 <= cfg.model.weave_waves <= 32:
         raise ConfigError(f"model.weave_waves must be within 0..32; got {cfg.model.weave_waves}")
+    if cfg.model.weave_waves_heads not in ("both", "visual"):
+        raise ConfigError(f"model.weave_waves_heads must be both or visual; got {cfg.model.weave_waves_heads!r}")
     if cfg.loss.tactile_r1 < 0:
         raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
     if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:

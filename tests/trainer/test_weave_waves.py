@@ -144,3 +144,14 @@ def test_an_exported_graph_places_the_waves_from_its_mask(tmp_path):
     (ort_out,) = ort_session(path).run(None, {"sketch": sk, "mask": mk})
     (ref,) = torch_outputs(g, "tactile", sk, mk)
     assert np.abs(ort_out - ref).max() < 1e-4
+
+
+def test_visual_only_waves_leave_the_tactile_head_as_published():
+    g = TwoBranchUNet(base=4, weave_waves=3, weave_waves_heads="visual")
+    plain = TwoBranchUNet(base=4)
+    assert g.visual.up0[1].out_channels == 3 * 7 and g.tactile.up0[1].out_channels == 2
+    assert {k: v.shape for k, v in g.tactile.state_dict().items()} == {
+        k: v.shape for k, v in plain.tactile.state_dict().items()}
+    assert TwoBranchUNet.from_config(g.model_config()).config == g.config
+    with pytest.raises(ValueError, match="weave_waves_heads"):
+        TwoBranchUNet(base=4, weave_waves=1, weave_waves_heads="tactile")

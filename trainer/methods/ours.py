@@ -48,7 +48,8 @@ class Ours(Method):
         self.generator = TwoBranchUNet(base=m.base, pe_dim=m.pe_dim, outer_skip=m.outer_skip,
                                        tactile_mult=m.tactile_mult,
                                        tactile_reads_visual=m.tactile_reads_visual,
-                                       weave_waves=m.weave_waves).to(self.device)
+                                       weave_waves=m.weave_waves,
+                                       weave_waves_heads=m.weave_waves_heads).to(self.device)
         self.G = self._wrap_generator()
         betas = tuple(o.betas)
         self.opts["G"] = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=betas)

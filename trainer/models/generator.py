@@ -29,6 +29,9 @@ from trainer.models.posenc import masked_input
 from trainer.models.weave_waves import object_coords, wave_mix
 
 
+WAVE_HEADS = ("both", "visual")   # the tactile head's own waves are measured apart (docs/training.md, "Weave waves")
+
+
 @dataclass
 class GeneratorConfig:
     """What `TwoBranchUNet` needs to be rebuilt from a checkpoint (stored as `model_config`)."""
@@ -42,6 +45,7 @@ class GeneratorConfig:
     tactile_mult: int = 1   # width multiplier of the tactile head's own layers (up3..up0); 1 = the paper's
     tactile_reads_visual: bool = False   # the tactile head's up2..up0 also take the visual head's features
     weave_waves: int = 0   # plane waves each head mixes into its output (trainer/models/weave_waves.py); 0 = off
+    weave_waves_heads: str = "both"   # which heads mix them: "both" or "visual"
 
 
 def _down(cin: int, cout: int, *, outermost: bool = False, innermost: bool = False) -> nn.Sequential:
@@ -129,14 +133,16 @@ class TwoBranchUNet(nn.Module):
 
     def __init__(self, *, base: int = 10, pe_dim: int = 4, out_visual: int = 3, out_tactile: int = 2,
                  max_mult: int = 8, outer_skip: bool = False, tactile_mult: int = 1,
-                 tactile_reads_visual: bool = False, weave_waves: int = 0):
+                 tactile_reads_visual: bool = False, weave_waves: int = 0, weave_waves_heads: str = "both"):
         super().__init__()
         if tactile_mult < 1:
             raise ValueError(f"tactile_mult must be >= 1; got {tactile_mult}")
         if weave_waves < 0:
             raise ValueError(f"weave_waves must be >= 0; got {weave_waves}")
+        if weave_waves_heads not in WAVE_HEADS:
+            raise ValueError(f"weave_waves_heads must be one of {', '.join(WAVE_HEADS)}; got {weave_waves_heads!r}")
         self.config = GeneratorConfig(base, pe_dim, out_visual, out_tactile, max_mult, outer_skip, tactile_mult,
-                                      bool(tactile_reads_visual), int(weave_waves))
+                                      bool(tactile_reads_visual), int(weave_waves), weave_waves_heads)
         self.pe_dim = pe_dim
         w = [min(base * 2 ** i, base * max_mult) for i in range(8)]   # 10 20 40 80 80 80 80 80
         cin = 1 + 2 * pe_dim
@@ -148,7 +154,8 @@ class TwoBranchUNet(nn.Module):
         self.up4 = _up(2 * w[4], w[3])
         self.visual = Branch(widths=w, out=out_visual, outer_skip=outer_skip, waves=weave_waves)
         self.tactile = Branch(widths=w, out=out_tactile, outer_skip=outer_skip, mult=tactile_mult,
-                              reads=self.visual.widths_out if tactile_reads_visual else None, waves=weave_waves)
+                              reads=self.visual.widths_out if tactile_reads_visual else None,
+                              waves=weave_waves if weave_waves_heads == "both" else 0)
         if weave_waves:   # set from the training photo before training (set_waves); a checkpoint restores it
             self.register_buffer("wave_k", torch.zeros(weave_waves, 2))
 

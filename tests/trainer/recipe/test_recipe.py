@@ -204,7 +204,7 @@ def test_texture_loss_zero_on_equal_and_grows_with_contrast_error():
 def test_recipe_options_are_validated():
     for bad in ("optim.lr_policy=cosine", "optim.decay_from=1.5", "train.ema=1", "loss.tactile_texture=-1",
                 "loss.visual_weave=-1", "loss.tactile_shading=-1", "loss.diffaug=color,warp", "model.weave_waves=-1",
-                "model.weave_waves=33"):
+                "model.weave_waves=33", "model.weave_waves_heads=tactile"):
         with pytest.raises(ConfigError):
             load_config("tiny", overrides=[bad])
 
