@@ -11,7 +11,8 @@ photo's fine-band spectrum, where (u, v) is the pixel's offset from the object's
 same in every training crop (the crop keeps the object inside) and at evaluation, and is computed in the graph from
 the mask, so an exported graph still takes only the sketch and the mask. The head outputs, besides its channels, a
 weight per channel and wave (sin, cos): a smooth weight field places a plane wave's phase and strength, which a
-network of stride-2 convolutions cannot draw itself at a few pixels' period.
+network of stride-2 convolutions cannot draw itself at a few pixels' period. Measured and not adopted: the photo
+gains, the relief does not (docs/training.md, "Weave waves").
 """
 from __future__ import annotations
 
