@@ -13,6 +13,7 @@ import yaml
 from kiosk.config import loader
 from kiosk.contract.graph import GRID_MULTIPLE, is_grid
 from trainer.errors import TrainerError
+from trainer.models.generator import WAVE_HEADS
 from trainer.recipe.diffaug import parse_policy
 from trainer.recipe.schedule import POLICIES
 
@@ -251,8 +252,6 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"model.tactile_mult must be >= 1; got {cfg.model.tactile_mult}")
     if not 0 <= cfg.model.weave_waves <= 32:
         raise ConfigError(f"model.weave_waves must be within 0..32; got {cfg.model.weave_waves}")
-    if cfg.model.weave_waves_heads not in ("both", "visual"):
-        raise ConfigError(f"model.weave_waves_heads must be both or visual; got {cfg.model.weave_waves_heads!r}")
     if cfg.loss.tactile_r1 < 0:
         raise ConfigError(f"loss.tactile_r1 must be >= 0; got {cfg.loss.tactile_r1}")
     if not 0.0 <= cfg.loss.tactile_gan_ramp <= 1.0:
@@ -291,7 +290,8 @@ def validate(cfg: RunConfig) -> None:
     choices = {("optim", "lr_policy"): POLICIES,
                ("data", "unpaired_sampling"): ("laplacian", "uniform"),
                ("loss", "tactile_d_visual"): ("generated", "real", "none"),
-               ("loss", "unpaired_contact"): ("borrowed", "object")}
+               ("loss", "unpaired_contact"): ("borrowed", "object"),
+               ("model", "weave_waves_heads"): WAVE_HEADS}
     for (section, key), allowed in choices.items():
         value = getattr(getattr(cfg, section), key)
         if value not in allowed:
