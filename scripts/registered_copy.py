@@ -38,16 +38,23 @@ def registered_copy(data: Path, name: str, out: Path) -> Path:
     offsets = (meta.get("realism") or {}).get("registration_offsets_px")
     if not isinstance(offsets, list):
         raise SystemExit(f"{src.name}: synthetic.yaml records no registration offsets (the easy profile has none)")
+    return moved_copy(src, out, lambda stem: registration_offset(offsets, stem), SPLITS,
+                      "moved back to where they were pressed")
+
+
+def moved_copy(src: Path, out: Path, offset_of, splits=SPLITS, what: str = "moved") -> Path:
+    """A copy of garment folder `src` under `out` whose touches of `splits` have their recorded corner moved by
+    minus `offset_of(touch file stem)` (dx, dy), recorded minus pressed; everything else copied byte for byte."""
     dst = out / src.name
     if dst.resolve() == src.resolve():
         raise SystemExit(f"{dst}: the copy would overwrite its source")
     shutil.rmtree(dst, ignore_errors=True)
     shutil.copytree(src, dst)
     moved = 0
-    for split in SPLITS:
+    for split in splits:
         for f in sorted((dst / split).glob("*_tactile.npz")):
             try:
-                dx, dy = registration_offset(offsets, f.stem)
+                dx, dy = offset_of(f.stem)
             except ValueError as exc:
                 raise SystemExit(str(exc)) from exc
             with np.load(f) as z:
@@ -56,7 +63,7 @@ def registered_copy(data: Path, name: str, out: Path) -> Path:
             arrays["vision_mask_y"] = np.asarray(int(arrays["vision_mask_y"]) - dy)
             np.savez_compressed(f, **arrays)
             moved += 1
-    print(f"{dst}: {moved} touches moved back to where they were pressed")
+    print(f"{dst}: {moved} touches {what}")
     return dst
 
 
