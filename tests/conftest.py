@@ -79,6 +79,18 @@ def hard_one(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def hard_tiny_run(hard_one, tmp_path_factory) -> Path:
+    """A 30-step tiny-preset run on the hard garment: what the photo-reading scripts' tests read. Shared, not
+    written to."""
+    from trainer.config import load_config
+    from trainer.loop import Trainer
+    out = tmp_path_factory.mktemp("hard_tiny") / "run"
+    Trainer(load_config("tiny", overrides=["train.steps=30", "train.threads=1"]), next(
+        p for p in hard_one.iterdir() if p.is_dir()), out).run()
+    return out
+
+
+@pytest.fixture(scope="session")
 def easy_garment(tmp_path_factory):
     """One easy-profile synthetic garment (192x144 frame), loaded: its photo is Lambert shading of its touch field.
     The relief calibrations' tests read it and never write, so it is shared."""

@@ -11,9 +11,7 @@ import pytest
 import torch
 
 from tests.scripts_module import load_script
-from trainer.config import load_config
 from trainer.evaluate import Prediction
-from trainer.loop import Trainer
 
 
 @pytest.fixture(scope="module")
@@ -22,11 +20,8 @@ def pb():
 
 
 @pytest.fixture(scope="module")
-def run(hard_one, tmp_path_factory):
-    out = tmp_path_factory.mktemp("bound") / "run"
-    Trainer(load_config("tiny", overrides=["train.steps=30", "train.threads=1"]), next(
-        p for p in hard_one.iterdir() if p.is_dir()), out).run()
-    return out
+def run(hard_tiny_run):
+    return hard_tiny_run
 
 
 def test_own_and_real_photo_are_scored_beside_the_references(pb, run, tmp_path, capsys):
