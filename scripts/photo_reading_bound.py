@@ -67,7 +67,8 @@ def read(ctx, tac: torch.Tensor, photo: torch.Tensor, width: int, channels: int,
     win = windows(lum[0, 0].double().numpy(), width)
     model = tac[0].double().numpy()
     linear, net_out = np.zeros_like(model), torch.zeros_like(target)
-    for taught, scored in (halves(obj), halves(obj)[::-1]):
+    split = halves(obj)
+    for taught, scored in (split, split[::-1]):
         ty, tx = np.nonzero(taught)
         sy, sx = np.nonzero(scored)
         f_t, f_s = win[ty, tx], win[sy, sx]

@@ -4,11 +4,14 @@ The hard profile records each touch a pixel or two off where it was pressed (syn
 `realism.registration_offsets_px`, recorded minus pressed corner), as marker tracking does on a real capture, and
 the touches moved back are worth 5-15 points of the gap (docs/training.md, "What registration is worth"). The photo
 is in the frame the truth is in, so a touch whose slopes match the photo's shading best a pixel away was pressed
-there. Alternating, a free K x K filter of the photo's log-luminance (each window's mean out) is fitted to the
-training touches' slopes where they are placed now, and each touch is moved to the shift within `--radius` where that
-filter's relief matches it best (least squares after a gain of its own). The filter can absorb a shift common to every
-touch, so the shifts' rounded mean is taken out each round (recording errors average to nothing). Only the photo and
-the training touches are read: a real capture can be registered the same way.
+there. Alternating, a mix of the shading relief's filter bank (trainer/models/shading_relief.py) applied to the
+photo's log-luminance is fitted to the training touches' slopes where they are placed now, and each touch is moved
+to the offset within `--radius` where that relief matches it best (least squares after a gain of its own), until no
+touch moves. The bank's filters are centred, so the mix cannot absorb a shift common to every touch. `--basis free`
+fits every tap of a K x K window instead; that filter can absorb a common shift, so the offsets' rounded mean is
+taken out each round (recording errors average to nothing, but not on ten touches: docs/training.md, "How far a
+reading of the photo reaches"). Only the photo and the training touches are read: a real capture can be registered
+the same way.
 
 On a synthetic garment the estimates are scored against the recorded offsets (`hits`: exactly right; mean distance
 left against the recorded corners'). `--write OUT` writes a copy of the garment whose training touches are moved by
@@ -33,7 +36,6 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from offsets_found import score  # noqa: E402
-from photo_shading_bound import windows  # noqa: E402
 from registered_copy import moved_copy  # noqa: E402
 
 from trainer.data.synthetic import registration_offset  # noqa: E402
@@ -78,48 +80,36 @@ def training_touches(g: Garment, radius: int) -> list[Touch]:
     return out
 
 
-def fit_filters(lum: np.ndarray, touches: list[Touch], placed: dict[str, tuple[int, int]], width: int,
-                basis: str = "free") -> tuple[np.ndarray, np.ndarray]:
-    """(gx kernel, gy kernel), each (width, width): the ridge fit of the touches' slopes, each touch read at its
-    pressed place (recorded minus its offset in `placed`), on the photo windows there."""
+def basis_kernels(width: int, basis: str) -> np.ndarray:
+    """(F, width, width) float64: the filters a fit mixes. `bank`: the shading relief's bank, every filter centred,
+    so the mix cannot absorb a shift shared by every touch. `free`: every tap of the window, the window's mean out
+    (a uniform brightness is no slope)."""
     if basis == "bank":
-        bank = filter_bank(width).reshape(-1, width, width).astype(np.float64)   # centred: no shift to absorb
-        r = width // 2
-        x = torch.from_numpy(np.pad(lum, r, mode="edge"))[None, None]
-        maps = F.conv2d(x, torch.from_numpy(bank)[:, None])[0].numpy()
-    else:
-        win = windows(lum, width)
-    feats, tx, ty = [], [], []
-    for t in touches:
-        dx, dy = placed[t.name]
-        if basis == "bank":
-            feats.append(maps[:, t.y - dy, t.x - dx].T)
-        else:
-            f = win[t.y - dy, t.x - dx]
-            feats.append(f - f.mean(1, keepdims=True))
-        tx.append(t.gx)
-        ty.append(t.gy)
-    a = np.concatenate(feats)
+        return filter_bank(width).reshape(-1, width, width).astype(np.float64)
+    taps = width * width
+    return (np.eye(taps) - 1.0 / taps).reshape(taps, width, width)
+
+
+def convolve(lum: np.ndarray, kernels: np.ndarray) -> np.ndarray:
+    """(n, P, P): each of `kernels` (n, K, K) applied to `lum` (P, P), edges replicated."""
+    r = kernels.shape[-1] // 2
+    x = torch.from_numpy(np.pad(lum, r, mode="edge"))[None, None]
+    return F.conv2d(x, torch.from_numpy(np.ascontiguousarray(kernels))[:, None])[0].numpy()
+
+
+def fit_filters(lum: np.ndarray, touches: list[Touch], placed: dict[str, tuple[int, int]], width: int,
+                basis: str = "bank") -> np.ndarray:
+    """(2, width, width): the gx and gy kernels, ridge fits of the touches' slopes on the basis' responses, each
+    touch read at its pressed place (recorded minus its offset in `placed`)."""
+    kernels = basis_kernels(width, basis)
+    maps = convolve(lum, kernels)
+    a = np.concatenate([maps[:, t.y - placed[t.name][1], t.x - placed[t.name][0]].T for t in touches])
     sd = a.std(0)
-    sd = np.where(sd > 0, sd, 1.0)   # a tap constant over every touch carries nothing: weight 0, no 0 division
+    sd = np.where(sd > 0, sd, 1.0)   # a response constant over every touch carries nothing: weight 0, no 0 division
     an = a / sd
     lhs = an.T @ an + RIDGE * len(a) * np.eye(a.shape[1])
-    out = []
-    for target in (np.concatenate(tx), np.concatenate(ty)):
-        w = np.linalg.solve(lhs, an.T @ target) / sd
-        if basis == "bank":
-            out.append(np.tensordot(w, bank, axes=1))
-        else:
-            out.append((w - w.mean()).reshape(width, width))   # the window mean taken out, as in the fit
-    return out[0], out[1]
-
-
-def relief(lum: np.ndarray, kernels: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    r = kernels[0].shape[0] // 2
-    x = torch.from_numpy(np.pad(lum, r, mode="edge"))[None, None]
-    k = torch.from_numpy(np.stack(kernels))[:, None]
-    out = F.conv2d(x, k)[0].numpy()
-    return out[0], out[1]
+    return np.stack([np.tensordot(np.linalg.solve(lhs, an.T @ np.concatenate(target)) / sd, kernels, axes=1)
+                     for target in ([t.gx for t in touches], [t.gy for t in touches])])
 
 
 def best_offset(t: Touch, rx: np.ndarray, ry: np.ndarray, tried: list[tuple[int, int]]) -> tuple[int, int]:
@@ -147,7 +137,7 @@ def estimate(g: Garment, width: int = 11, radius: int = 3, rounds: int = 8, basi
     tried = shifts(radius)
     placed = {t.name: (0, 0) for t in touches}
     for n in range(1, rounds + 1):
-        rx, ry = relief(lum, fit_filters(lum, touches, placed, width, basis))
+        rx, ry = convolve(lum, fit_filters(lum, touches, placed, width, basis))
         found = {t.name: best_offset(t, rx, ry, tried) for t in touches}
         common = np.round(np.mean(list(found.values()), 0)).astype(int) * int(basis == "free")
         found = {k: (dx - int(common[0]), dy - int(common[1])) for k, (dx, dy) in found.items()}

@@ -30,8 +30,8 @@ def planted(pr, g, offsets: dict[str, tuple[int, int]]):
     bank = filter_bank(11).astype(np.float64)
     rng = np.random.default_rng(0)
     w = rng.normal(size=(2, bank.shape[0]))
-    kernels = tuple(np.tensordot(w[c], bank[:, c], axes=1) for c in (0, 1))
-    rx, ry = pr.relief(pr.photo_luminance(g), kernels)
+    kernels = np.stack([np.tensordot(w[c], bank[:, c], axes=1) for c in (0, 1)])
+    rx, ry = pr.convolve(pr.photo_luminance(g), kernels)
     touches = []
     for t in g.touches["train"]:
         dx, dy = offsets.get(t.name, (0, 0))
@@ -88,3 +88,11 @@ def test_what_cannot_be_registered_is_refused(pr, hard_one, garment, tmp_path, c
     dark = dataclasses.replace(garment, visual=None)
     with pytest.raises(SystemExit, match="no photo"):
         pr.estimate(dark)
+
+
+def test_the_free_basis_reads_each_window_less_its_mean(pr):
+    lum = np.random.default_rng(2).normal(size=(9, 11))
+    maps = pr.convolve(lum, pr.basis_kernels(3, "free"))
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(lum, 1, mode="edge"), (3, 3)).reshape(9, 11, 9)
+    assert np.allclose(maps.transpose(1, 2, 0), win - win.mean(-1, keepdims=True))
+    assert pr.basis_kernels(11, "bank").shape == (16, 11, 11)
