@@ -9,7 +9,7 @@ trained; the scores are the evaluator's own (trainer/evaluate.py), on the traini
 `--linear K` adds a wider bound: the best any linear reading of a photo could do. Beside the model's relief, a free
 K x K filter of the photo's log-luminance (each window's mean out) is fitted per slope channel, on the recorded
 touches as the rules fit, then on the truth at the same pixels (registration perfect) and on the truth over the whole
-object (an oracle fit: no linear reading of that photo, however found, scores better on the training sketch).
+object (an oracle fit: no linear reading of that photo, however found, comes closer to the truth there in squares).
 
     .venv/bin/python scripts/photo_shading_bound.py runs/b3/KnitJacket/ours-txr-s12 --mirrors flip+transpose-energy
 """
@@ -75,7 +75,12 @@ def bound(run: Path, which: str = "latest", mirrors: str = "none", linear: tuple
             rows[f"{rule}, {photo}"] = row(tac, model_weight=fit.model_weight)
     for k in linear:
         for photo, vis in (("own photo", p.vis), ("real photo", ctx.visual)):
-            for where, tac in linear_reliefs(ctx, p.tac, vis, k).items():
+            try:
+                reliefs = linear_reliefs(ctx, p.tac, vis, k)
+            except CalibrationError as exc:
+                rows[f"linear {k}, {photo}"] = {"refused": str(exc)}
+                continue
+            for where, tac in reliefs.items():
                 rows[f"linear {k}, {photo}, fit on {where}"] = row(tac)
     for name in ("shape-oracle", "flat", "oracle"):
         if name in refs:
@@ -147,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--which", default="latest", choices=("latest", "best"))
     ap.add_argument("--mirrors", default="none", choices=sorted(MODES))
     ap.add_argument("--linear", type=int, nargs="*", default=[], metavar="K",
-                    help="add the rows of a free K x K linear filter of each photo (odd K; 11 measured)")
+                    help="add the rows of a free K x K linear filter of each photo (odd K; 11 and 21 measured)")
     ap.add_argument("--json", type=Path, help="write the rows here")
     a = ap.parse_args(argv)
     if any(k < 1 or k % 2 == 0 for k in a.linear):

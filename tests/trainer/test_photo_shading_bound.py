@@ -69,3 +69,10 @@ def test_an_even_or_empty_filter_width_is_refused(pb, run, k, capsys):
 def test_a_folder_that_is_no_run_is_refused(pb, tmp_path, capsys):
     assert pb.main([str(tmp_path)]) == 2
     assert str(tmp_path) in capsys.readouterr().err
+
+
+def test_no_touch_in_the_crop_refuses_the_linear_rows(pb, run, monkeypatch):
+    monkeypatch.setattr(pb, "touch_pixels", lambda *a, **k: [])
+    rows = pb.bound(run, linear=(3,))["rows"]
+    assert "no training touch" in rows["linear 3, real photo"]["refused"]
+    assert not any(k.startswith("linear 3, real photo, fit on") for k in rows)
